@@ -1,0 +1,14 @@
+//! What the terranav robot agent and operator station must agree on.
+//!
+//! - [`msg`]: the wire messages of the Zenoh key space, postcard-encoded with a schema version.
+//! - [`keys`]: every Zenoh key expression, built and parsed by functions.
+//! - [`grid`]: traversability cell states, map tiles on the fixed map-frame lattice, and the tile codec.
+//! - [`geo`]: WGS-84 geodetic / ECEF / ENU conversions and NMEA-0183 sentences.
+//! - [`geom`]: small SE(2)/SE(3) helpers over nalgebra.
+#![deny(missing_docs)]
+
+pub mod geo;
+pub mod geom;
+pub mod grid;
+pub mod keys;
+pub mod msg;

@@ -1,0 +1,9 @@
+//! terranav operator station: tracks robots, merges their tiles into one large map, persists
+//! sessions, tracks, routes and tiles in SQLite, and serves the browser UI and its API.
+#![deny(missing_docs)]
+
+pub mod api;
+pub mod cli;
+pub mod fleet;
+pub mod merge;
+pub mod store;

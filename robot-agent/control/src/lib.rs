@@ -1,0 +1,1 @@
+//! Pure pursuit path following, velocity limits and the safety stop.

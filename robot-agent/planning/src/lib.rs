@@ -1,0 +1,1 @@
+//! Goal assignment, reachability floods, A* on the traversability grid, path smoothing.

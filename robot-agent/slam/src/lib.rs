@@ -1,0 +1,1 @@
+//! Scan-to-map ICP SLAM with dynamic-point map maintenance.

@@ -1,0 +1,1 @@
+//! Missions: go to a goal (map or GNSS), teach (record a route) and repeat (follow it back).

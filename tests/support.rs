@@ -1,0 +1,69 @@
+//! Helpers for the cross-process tests: find the built binaries, the shared test data, free ports,
+//! and run child processes that are killed when the test ends.
+//!
+//! The binaries are not built by `cargo test` for another package, so the README's test command
+//! builds them first (`cargo build --release --bins`); [`bin`] finds them next to the test executable.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command};
+
+/// Root of the workspace.
+pub fn workspace_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("tests/ is inside the workspace")
+        .to_path_buf()
+}
+
+/// `../shared/data` next to the project, or None (with a printed notice naming `what`) when absent.
+pub fn shared_data(what: &str) -> Option<PathBuf> {
+    let p = workspace_root().join("../shared/data");
+    if p.is_dir() {
+        Some(p)
+    } else {
+        println!("skipping {what}: ../shared/data is absent");
+        None
+    }
+}
+
+/// Path of a workspace binary (`robot-agent`, `operator-station`) built in the same profile as the test.
+pub fn bin(name: &str) -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    // target/<profile>/deps/<test> -> target/<profile>/<name>
+    let dir = exe
+        .parent()
+        .and_then(Path::parent)
+        .expect("test executable lives in target/<profile>/deps");
+    let p = dir.join(name);
+    assert!(
+        p.exists(),
+        "{} not built: run `cargo build --release --bins` first (the README's test command does)",
+        p.display()
+    );
+    p
+}
+
+/// A TCP port that was free a moment ago on 127.0.0.1.
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .expect("bind an ephemeral port")
+}
+
+/// A child process killed (and reaped) when dropped, so a failing test leaves nothing running.
+pub struct KillOnDrop(pub Child);
+
+impl KillOnDrop {
+    /// Spawns `cmd`.
+    pub fn spawn(cmd: &mut Command) -> anyhow::Result<Self> {
+        Ok(Self(cmd.spawn()?))
+    }
+}
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
