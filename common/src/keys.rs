@@ -11,7 +11,9 @@ pub const PREFIX: &str = "terranav";
 pub const MAX_ROBOT_ID_LEN: usize = 64;
 
 /// A validated robot id: `[a-z0-9-]+`, at most [`MAX_ROBOT_ID_LEN`] bytes, not starting or ending with `-`.
-#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize,
+)]
 #[serde(try_from = "String", into = "String")]
 pub struct RobotId(String);
 
@@ -20,7 +22,9 @@ pub struct RobotId(String);
 #[non_exhaustive]
 pub enum KeyError {
     /// The robot id is empty, too long or has characters outside `[a-z0-9-]`.
-    #[error("invalid robot id {0:?}: use 1-64 characters of [a-z0-9-], not starting or ending with '-'")]
+    #[error(
+        "invalid robot id {0:?}: use 1-64 characters of [a-z0-9-], not starting or ending with '-'"
+    )]
     InvalidRobotId(String),
     /// The key is not under `terranav/`.
     #[error("key {0:?} is not in the terranav key space")]
@@ -216,7 +220,18 @@ mod tests {
         for ok in ["husky-1", "a", "r2d2", "x-y-z"] {
             assert!(RobotId::new(ok).is_ok(), "{ok}");
         }
-        for bad in ["", "Husky", "a/b", "a b", "-a", "a-", "*", "a**", "é", &"a".repeat(65)] {
+        for bad in [
+            "",
+            "Husky",
+            "a/b",
+            "a b",
+            "-a",
+            "a-",
+            "*",
+            "a**",
+            "é",
+            &"a".repeat(65),
+        ] {
             assert!(RobotId::new(bad).is_err(), "{bad:?}");
         }
     }
@@ -242,17 +257,38 @@ mod tests {
             let k = key(&r, t);
             assert_eq!(parse(&k).unwrap(), (r.clone(), t), "{k}");
         }
-        assert_eq!(key(&r, Topic::Tile { tx: -3, ty: 7 }), "terranav/husky-1/tile/-3/7");
+        assert_eq!(
+            key(&r, Topic::Tile { tx: -3, ty: 7 }),
+            "terranav/husky-1/tile/-3/7"
+        );
     }
 
     #[test]
     fn bad_keys_are_refused() {
-        assert!(matches!(parse("other/x/pose"), Err(KeyError::NotTerranav(_))));
-        assert!(matches!(parse("terranav/X/pose"), Err(KeyError::InvalidRobotId(_))));
-        assert!(matches!(parse("terranav/x/nope"), Err(KeyError::UnknownTopic(_))));
-        assert!(matches!(parse("terranav/x/tile/1/a"), Err(KeyError::BadTileIndex(_))));
-        assert!(matches!(parse("terranav/x/tile/1"), Err(KeyError::UnknownTopic(_))));
-        assert!(matches!(parse("terranav"), Err(KeyError::InvalidRobotId(_))));
+        assert!(matches!(
+            parse("other/x/pose"),
+            Err(KeyError::NotTerranav(_))
+        ));
+        assert!(matches!(
+            parse("terranav/X/pose"),
+            Err(KeyError::InvalidRobotId(_))
+        ));
+        assert!(matches!(
+            parse("terranav/x/nope"),
+            Err(KeyError::UnknownTopic(_))
+        ));
+        assert!(matches!(
+            parse("terranav/x/tile/1/a"),
+            Err(KeyError::BadTileIndex(_))
+        ));
+        assert!(matches!(
+            parse("terranav/x/tile/1"),
+            Err(KeyError::UnknownTopic(_))
+        ));
+        assert!(matches!(
+            parse("terranav"),
+            Err(KeyError::InvalidRobotId(_))
+        ));
     }
 
     #[test]

@@ -427,7 +427,11 @@ mod tests {
             name: "home".into(),
             robot: "husky-1".into(),
             session_id: "s".into(),
-            datum: Some(Datum { lat_deg: 48.1, lon_deg: 11.5, h_m: 500.0 }),
+            datum: Some(Datum {
+                lat_deg: 48.1,
+                lon_deg: 11.5,
+                h_m: 500.0,
+            }),
             points: vec![RoutePoint {
                 x_m: 1.0,
                 y_m: 2.0,
@@ -447,18 +451,39 @@ mod tests {
             robot: "husky-1".into(),
             start_unix_ms: 1_700_000_000_000,
             frame: MapFrame::EnuAtDatum,
-            datum: Some(Datum { lat_deg: 48.1, lon_deg: 11.5, h_m: 500.0 }),
+            datum: Some(Datum {
+                lat_deg: 48.1,
+                lon_deg: 11.5,
+                h_m: 500.0,
+            }),
             cell_size_m: 0.2,
             tile_cells: 64,
             source: "sim:park".into(),
             agent_version: "0.1.0".into(),
         });
         rt(Status::default());
-        rt(Path { t_unix_ms: 1, goal_id: 2, points_m: vec![(1.0, 2.0), (3.0, 4.5)] });
-        rt(GoalCmd { goal_id: 3, target: GoalTarget::Gnss { lat_deg: 1.0, lon_deg: 2.0, h_m: None }, tolerance_m: 0.0 });
-        rt(RouteCmd::Repeat { route: route(), direction: RouteDirection::Reverse });
+        rt(Path {
+            t_unix_ms: 1,
+            goal_id: 2,
+            points_m: vec![(1.0, 2.0), (3.0, 4.5)],
+        });
+        rt(GoalCmd {
+            goal_id: 3,
+            target: GoalTarget::Gnss {
+                lat_deg: 1.0,
+                lon_deg: 2.0,
+                h_m: None,
+            },
+            tolerance_m: 0.0,
+        });
+        rt(RouteCmd::Repeat {
+            route: route(),
+            direction: RouteDirection::Reverse,
+        });
         rt(RouteCmd::Record { name: "x".into() });
-        rt(StopCmd { reason: "operator".into() });
+        rt(StopCmd {
+            reason: "operator".into(),
+        });
         rt(SpeedCmd { limit_mps: 0.3 });
         rt(route());
     }
@@ -467,11 +492,20 @@ mod tests {
     fn wrong_schema_and_garbage_are_typed_errors() {
         let mut b = encode(&StopCmd::default());
         b[0] = 9;
-        assert!(matches!(decode::<StopCmd>(&b), Err(DecodeError::SchemaMismatch { got: 9, .. })));
-        assert!(matches!(decode::<StopCmd>(&[]), Err(DecodeError::Truncated(0))));
+        assert!(matches!(
+            decode::<StopCmd>(&b),
+            Err(DecodeError::SchemaMismatch { got: 9, .. })
+        ));
+        assert!(matches!(
+            decode::<StopCmd>(&[]),
+            Err(DecodeError::Truncated(0))
+        ));
         let mut b = encode(&SpeedCmd { limit_mps: 1.0 });
         b.push(0);
-        assert!(matches!(decode::<SpeedCmd>(&b), Err(DecodeError::TrailingBytes(1))));
+        assert!(matches!(
+            decode::<SpeedCmd>(&b),
+            Err(DecodeError::TrailingBytes(1))
+        ));
         let b = encode(&SpeedCmd { limit_mps: 1.0 });
         assert!(matches!(decode::<Pose>(&b), Err(DecodeError::Malformed(_))));
     }

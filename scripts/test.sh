@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# The README's test command: sets up what a fresh machine lacks, builds, and runs every test.
+#
+#   scripts/test.sh            all tests (unit, cross-process, scenario, browser)
+#
+# Tests and binaries use the release profile: simulation, ICP and mapping are too slow unoptimised,
+# and one profile compiles the dependencies once.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+say() { printf '\n== %s\n' "$*" >&2; }
+
+# Browser tests drive Debian's chromium (never a downloaded browser).
+if ! command -v chromium >/dev/null 2>&1; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+        say "installing chromium (browser tests)"
+        apt-get update -qq
+        DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium >/dev/null
+    else
+        say "chromium missing and cannot install it (not root): browser tests will be skipped"
+    fi
+fi
+
+# The UI's npm dependencies (Leaflet; playwright-core for the browser tests), from the lock file.
+if [ -f web/package-lock.json ] && command -v npm >/dev/null 2>&1; then
+    if [ ! -d web/node_modules ] || [ web/package-lock.json -nt web/node_modules ]; then
+        say "installing web UI dependencies (npm ci)"
+        npm ci --prefix web --no-audit --no-fund --loglevel=error
+    fi
+fi
+
+say "building binaries (release)"
+cargo build --release --workspace --bins
+
+say "running tests (release)"
+cargo test --release --workspace "$@"
