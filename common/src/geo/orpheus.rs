@@ -1,0 +1,1 @@
+//! The Orpheus navigation-computer protocol (methods.md section 7). Being written.
