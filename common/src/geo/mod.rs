@@ -16,6 +16,10 @@ pub mod orpheus;
 pub mod trimble;
 pub mod wgs84;
 
-pub use nmea::{parse_sentence, Gga, Hdt, NmeaError, Rmc, Sentence, UtcTime};
-pub use trimble::{Avr, Ggk};
+pub use nmea::{
+    format_gga, format_hdt, format_rmc, parse_sentence, Gga, Hdt, NmeaError, Rmc, Sentence,
+    UtcDate, UtcTime,
+};
+pub use orpheus::{format_orpheus, parse_orpheus, OrpheusMessage, RoutePoint};
+pub use trimble::{format_avr, format_ggk, Avr, Ggk};
 pub use wgs84::{ecef_to_geodetic, enu_to_lla, geodetic_to_ecef, lla_to_enu, LocalFrame};
