@@ -1,1 +1,25 @@
-//! Scan-to-map ICP SLAM with dynamic-point map maintenance.
+//! Scan-to-map ICP SLAM with dynamic-point map maintenance (methods.md §3).
+//!
+//! A pure library: feed [`Slam`] scans (and optionally wheel odometry) with their time stamps;
+//! it returns `map<-base_link`, `map<-odom`, the map around the robot and ICP diagnostics. No
+//! threads, clocks or files inside.
+//!
+//! - [`filters`]: reading filters (sampling, robot box, voxel, PCA normals, max density).
+//! - [`icp`]: point-to-plane Gauss-Newton on SE(3) with Cauchy weights and checkers.
+//! - [`map`]: the point map, its spatial index and the dynamic-point ray model.
+//! - [`pipeline`]: the per-scan step ([`Slam::process`]).
+//! - [`eval`]: ATE / RPE / drift against ground truth.
+#![deny(missing_docs)]
+
+pub mod config;
+pub mod eval;
+pub mod filters;
+pub mod icp;
+pub mod index;
+pub mod map;
+pub mod pipeline;
+pub mod se3;
+
+pub use config::Config;
+pub use eval::{trajectory_errors, TrajectoryErrors};
+pub use pipeline::{Diagnostics, PriorKind, Slam, SlamError, SlamOutput};

@@ -1,0 +1,314 @@
+//! The per-scan SLAM step: prior, de-skew, reading filters, ICP against the map, map update.
+
+use crate::config::Config;
+use crate::filters::{self, OrientedCloud};
+use crate::icp::{self, IcpResult, IcpStatus};
+use crate::map::{Map, MapUpdateStats};
+use crate::se3;
+use nalgebra::{Isometry3, Point3, Vector6};
+use rand::rngs::StdRng;
+use rand::SeedableRng;
+use sensing::{OdomSample, Point, Scan};
+use std::collections::VecDeque;
+
+/// Why a scan could not be processed at all (ICP failures are reported in [`SlamOutput`]).
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[non_exhaustive]
+pub enum SlamError {
+    /// The scan's time stamp is not after the previous scan's.
+    #[error("scan stamp {stamp_s} s is not after the previous scan ({previous_s} s)")]
+    NonMonotonicStamp {
+        /// This scan.
+        stamp_s: f64,
+        /// The previous scan.
+        previous_s: f64,
+    },
+    /// The scan stamp is not a finite number.
+    #[error("scan stamp is not finite")]
+    BadStamp,
+    /// Too few points survived the reading filters to localise or map.
+    #[error("only {0} points left after the reading filters")]
+    TooFewPoints(usize),
+}
+
+/// Where the pose prior came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[non_exhaustive]
+pub enum PriorKind {
+    /// First scan: the map frame is defined by it.
+    First,
+    /// Wheel odometry, composed with the last `map<-odom`.
+    Odometry,
+    /// Constant velocity from the last two poses.
+    ConstantVelocity,
+}
+
+/// Per-scan diagnostics. Time spent is measured by the caller.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Diagnostics {
+    /// Prior used.
+    pub prior: PriorKind,
+    /// How ICP ended (`None` on the first scan).
+    pub status: Option<IcpStatus>,
+    /// True when ICP failed and the pose is the prior.
+    pub fell_back_to_prior: bool,
+    /// ICP iterations.
+    pub iterations: usize,
+    /// Weighted RMS point-to-plane residual, metres.
+    pub residual_rms_m: f64,
+    /// Share of the reading explained by the map (0..1).
+    pub inlier_ratio: f64,
+    /// Some direction was unconstrained (the prior was kept there).
+    pub degenerate: bool,
+    /// Smallest / largest Hessian eigenvalue.
+    pub eig_ratio: f64,
+    /// Points of the filtered reading.
+    pub reading_points: usize,
+    /// Map points after the update.
+    pub map_points: usize,
+    /// The map update.
+    pub map_update: MapUpdateStats,
+    /// True when the scan was de-skewed.
+    pub deskewed: bool,
+}
+
+/// What SLAM reports for one scan.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SlamOutput {
+    /// Scan time, seconds.
+    pub stamp_s: f64,
+    /// `map<-base_link`.
+    pub pose_map_base: Isometry3<f64>,
+    /// `map<-lidar` (the scan's pose).
+    pub pose_map_lidar: Isometry3<f64>,
+    /// `map<-odom`, when wheel odometry is fed.
+    pub pose_map_odom: Option<Isometry3<f64>>,
+    /// Map points around the robot for the traversability mapper, map frame.
+    pub map_cloud: Vec<Point>,
+    /// ICP and map diagnostics.
+    pub diagnostics: Diagnostics,
+}
+
+/// Scan-to-map SLAM. Feed odometry with [`Slam::push_odometry`] (optional) and scans in time
+/// order with [`Slam::process`].
+#[derive(Debug)]
+pub struct Slam {
+    cfg: Config,
+    base_from_lidar: Isometry3<f64>,
+    map: Map,
+    rng: StdRng,
+    odom: VecDeque<OdomSample>,
+    /// Last two scan poses `(stamp, map<-lidar)`, newest last.
+    history: VecDeque<(f64, Isometry3<f64>)>,
+    map_from_odom: Isometry3<f64>,
+}
+
+/// Odometry older than this before the newest scan is dropped, seconds.
+const ODOM_KEEP_S: f64 = 5.0;
+
+impl Slam {
+    /// A new SLAM session with an empty map.
+    pub fn new(cfg: Config) -> Self {
+        let base_from_lidar = se3::from_xyz_rpy(cfg.sensor.lidar_xyz_m, cfg.sensor.lidar_rpy_rad);
+        let map = Map::new(cfg.map.index, cfg.icp.max_match_dist_m as f32);
+        let rng = StdRng::seed_from_u64(cfg.filters.seed);
+        Self {
+            cfg,
+            base_from_lidar,
+            map,
+            rng,
+            odom: VecDeque::new(),
+            history: VecDeque::new(),
+            map_from_odom: Isometry3::identity(),
+        }
+    }
+
+    /// The configuration in use.
+    pub fn config(&self) -> &Config {
+        &self.cfg
+    }
+
+    /// The map.
+    pub fn map(&self) -> &Map {
+        &self.map
+    }
+
+    /// Adds one wheel-odometry sample (time order; out-of-order samples are ignored).
+    pub fn push_odometry(&mut self, s: OdomSample) {
+        if !s.t_s.is_finite() || self.odom.back().is_some_and(|b| s.t_s <= b.t_s) {
+            return;
+        }
+        self.odom.push_back(s);
+    }
+
+    /// `odom<-base_link` at time `t_s`, interpolated (or extrapolated with the last speeds).
+    fn odom_base_at(&self, t_s: f64) -> Option<Isometry3<f64>> {
+        let last = self.odom.back()?;
+        let pose = if t_s >= last.t_s {
+            last.pose_odom
+                .integrate(last.v_mps, last.omega_rps, t_s - last.t_s)
+        } else {
+            let i = self.odom.partition_point(|s| s.t_s <= t_s);
+            if i == 0 {
+                let f = self.odom.front()?;
+                f.pose_odom
+            } else {
+                let (a, b) = (&self.odom[i - 1], &self.odom[i]);
+                let u = (t_s - a.t_s) / (b.t_s - a.t_s);
+                let rel = a.pose_odom.inverse().compose(&b.pose_odom);
+                let step = common::geom::Pose2::new(rel.x_m * u, rel.y_m * u, rel.yaw_rad * u);
+                a.pose_odom.compose(&step)
+            }
+        };
+        Some(pose.to_isometry3(0.0))
+    }
+
+    /// Prior `map<-lidar` at `t_s` and where it came from.
+    fn prior(&self, t_s: f64) -> (Isometry3<f64>, PriorKind) {
+        if let Some(odom_base) = self.odom_base_at(t_s) {
+            if !self.history.is_empty() {
+                return (
+                    self.map_from_odom * odom_base * self.base_from_lidar,
+                    PriorKind::Odometry,
+                );
+            }
+        }
+        match (self.history.len(), self.history.back()) {
+            (0, _) | (_, None) => (self.base_from_lidar, PriorKind::First),
+            (1, Some((_, last))) => (*last, PriorKind::ConstantVelocity),
+            (_, Some((t1, last))) => {
+                let (t0, prev) = self.history[self.history.len() - 2];
+                let ratio = if t1 > &t0 {
+                    (t_s - t1) / (t1 - t0)
+                } else {
+                    1.0
+                };
+                let delta = se3::log(&(prev.inverse() * last)) * ratio;
+                (last * se3::exp(&delta), PriorKind::ConstantVelocity)
+            }
+        }
+    }
+
+    /// Body twist of the lidar per second (from the prior motion), for de-skewing.
+    fn twist_per_s(&self, prior: &Isometry3<f64>, t_s: f64) -> Option<Vector6<f64>> {
+        let (t_last, last) = self.history.back()?;
+        let dt = t_s - t_last;
+        (dt > 1e-6).then(|| se3::log(&(last.inverse() * prior)) / dt)
+    }
+
+    /// Localises one scan against the map and updates the map.
+    pub fn process(&mut self, scan: &Scan) -> Result<SlamOutput, SlamError> {
+        if !scan.stamp_s.is_finite() {
+            return Err(SlamError::BadStamp);
+        }
+        if let Some((prev, _)) = self.history.back() {
+            if scan.stamp_s <= *prev {
+                return Err(SlamError::NonMonotonicStamp {
+                    stamp_s: scan.stamp_s,
+                    previous_s: *prev,
+                });
+            }
+        }
+        let (prior, prior_kind) = self.prior(scan.stamp_s);
+
+        // De-skew: express every return in the lidar frame at `stamp_s`.
+        let swept = self.cfg.sensor.deskew && scan.points.iter().any(|p| p.t_s != 0.0);
+        let twist = if swept {
+            self.twist_per_s(&prior, scan.stamp_s)
+        } else {
+            None
+        };
+        let deskewed: Option<Vec<Point>> = twist.map(|xi| {
+            scan.points
+                .iter()
+                .map(|p| {
+                    let tf = se3::exp(&(xi * f64::from(p.t_s)));
+                    let q = tf * Point3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z));
+                    Point {
+                        x: q.x as f32,
+                        y: q.y as f32,
+                        z: q.z as f32,
+                        ..*p
+                    }
+                })
+                .collect()
+        });
+        let raw: &[Point] = deskewed.as_deref().unwrap_or(&scan.points);
+
+        let sampled = filters::sample(raw, &self.base_from_lidar, &self.cfg.filters, &mut self.rng);
+        let reading =
+            filters::normals_and_density(sampled, [0.0; 3], &self.cfg.filters, &mut self.rng);
+        if reading.len() < self.cfg.icp.min_matched_points.max(6) {
+            return Err(SlamError::TooFewPoints(reading.len()));
+        }
+
+        let icp_res: Option<IcpResult> = (!self.map.is_empty())
+            .then(|| icp::register(&reading, self.map.cloud(), &self.map, &prior, &self.cfg.icp));
+        let pose_map_lidar = icp_res.as_ref().map_or(prior, |r| r.pose);
+        let failed = icp_res.as_ref().is_some_and(|r| !r.status.is_ok());
+
+        // A failed scan must not write a misplaced copy of the world into the map.
+        let map_update = if failed {
+            MapUpdateStats::default()
+        } else {
+            let reading_map: OrientedCloud = reading.transformed(&pose_map_lidar);
+            self.map.update(
+                &reading_map,
+                raw,
+                &pose_map_lidar,
+                &self.cfg.map,
+                &self.cfg.dynamic,
+            )
+        };
+
+        let pose_map_base = pose_map_lidar * self.base_from_lidar.inverse();
+        let pose_map_odom = self
+            .odom_base_at(scan.stamp_s)
+            .map(|odom_base| pose_map_base * odom_base.inverse());
+        if let Some(m) = pose_map_odom {
+            self.map_from_odom = m;
+        }
+        self.history.push_back((scan.stamp_s, pose_map_lidar));
+        while self.history.len() > 2 {
+            self.history.pop_front();
+        }
+        while self.odom.len() > 2
+            && self
+                .odom
+                .get(1)
+                .is_some_and(|s| s.t_s < scan.stamp_s - ODOM_KEEP_S)
+        {
+            self.odom.pop_front();
+        }
+        let map_cloud = if self.cfg.map.output_radius_m > 0.0 {
+            self.map.cloud_around(
+                &pose_map_base.translation.vector,
+                self.cfg.map.output_radius_m,
+            )
+        } else {
+            Vec::new()
+        };
+        let r = icp_res.as_ref();
+        Ok(SlamOutput {
+            stamp_s: scan.stamp_s,
+            pose_map_base,
+            pose_map_lidar,
+            pose_map_odom,
+            map_cloud,
+            diagnostics: Diagnostics {
+                prior: prior_kind,
+                status: r.map(|r| r.status),
+                fell_back_to_prior: failed,
+                iterations: r.map_or(0, |r| r.iterations),
+                residual_rms_m: r.map_or(0.0, |r| r.residual_rms_m),
+                inlier_ratio: r.map_or(1.0, |r| r.inlier_ratio),
+                degenerate: r.is_some_and(|r| r.degenerate),
+                eig_ratio: r.map_or(0.0, |r| r.eig_ratio),
+                reading_points: reading.len(),
+                map_points: self.map.len(),
+                map_update,
+                deskewed: deskewed.is_some(),
+            },
+        })
+    }
+}
