@@ -220,9 +220,14 @@ impl Gga {
         Some(self.alt_msl_m? + self.geoid_sep_m?)
     }
 
-    /// Whether the fix carries a usable position (quality 1..=5 and lat/lon present).
+    /// Whether the fix carries a usable position: quality 1..=5, lat/lon present, and not
+    /// "0 satellites used" (receivers such as the Hemisphere in hemi.log claim quality 1 with 0
+    /// satellites while starting up; gpsd reports those as no fix too).
     pub fn has_fix(&self) -> bool {
-        (1..=5).contains(&self.quality) && self.lat_deg.is_some() && self.lon_deg.is_some()
+        (1..=5).contains(&self.quality)
+            && self.satellites != Some(0)
+            && self.lat_deg.is_some()
+            && self.lon_deg.is_some()
     }
 }
 
