@@ -1,0 +1,1222 @@
+// terranav operator UI: Leaflet map in the local metric frame of one datum (L.CRS.Simple, 1 unit =
+// 1 m, lat = y north, lng = x east), live state from the station's WebSocket, commands over REST.
+// Plain ES module, no build step. See README.md for the contract with the station.
+
+import { enuToGeodetic, geodeticToEnu, hasGeodetic, formatLatLon, parsePair } from "./geo.js";
+
+/* global L */
+
+// ---------------------------------------------------------------------------------------------
+// Station access (token on every request and on the WebSocket)
+// ---------------------------------------------------------------------------------------------
+
+const TOKEN = new URLSearchParams(location.search).get("token");
+
+/** Appends the page's token to a URL (images and the WebSocket cannot carry a header). */
+function withToken(url) {
+  if (!TOKEN) return url;
+  return url + (url.includes("?") ? "&" : "?") + "token=" + encodeURIComponent(TOKEN);
+}
+
+class ApiError extends Error {}
+
+/** JSON request to the station; throws ApiError with the station's `{"error"}` text on failure. */
+async function api(method, path, body) {
+  const headers = { Accept: "application/json" };
+  if (TOKEN) headers.Authorization = "Bearer " + TOKEN;
+  if (body !== undefined) headers["Content-Type"] = "application/json";
+  let res;
+  try {
+    res = await fetch(withToken(path), {
+      method,
+      headers,
+      body: body === undefined ? undefined : JSON.stringify(body),
+      cache: "no-store",
+    });
+  } catch (e) {
+    throw new ApiError(`${method} ${path}: station unreachable (${e.message})`);
+  }
+  const text = await res.text();
+  let data = null;
+  try {
+    data = text ? JSON.parse(text) : null;
+  } catch {
+    data = null;
+  }
+  if (!res.ok) {
+    const reason = data && data.error ? data.error : text || res.statusText;
+    throw new ApiError(`${method} ${path}: ${res.status} ${reason}`);
+  }
+  return data;
+}
+
+const enc = encodeURIComponent;
+
+// ---------------------------------------------------------------------------------------------
+// State
+// ---------------------------------------------------------------------------------------------
+
+const TRAIL_MAX_POINTS = 3000;
+const TRAIL_MIN_STEP_M = 0.1;
+const DRIVE_PERIOD_MS = 100;
+const OMEGA_MAX_RPS = 0.8;
+const STALE_WARN_MS = 1500;
+const STALE_BAD_MS = 5000;
+
+const state = {
+  robots: new Map(), // name -> RobotView
+  datums: new Map(), // datum_id -> {datum_id, lat_deg, lon_deg, h_m, tiles, bounds_m}
+  datumManual: "", // "" = follow the selected robot's datum
+  datumId: null, // datum currently drawn
+  tileMeta: null, // {cell_size_m, tile_cells}
+  tiles: new Map(), // "tx,ty" -> {version, overlay, loading}
+  selected: null,
+  goalMode: false,
+  follow: false,
+  routes: [],
+  routeLayers: new Map(), // route_id -> polyline
+  sessions: [],
+  trackLayers: new Map(), // session_id -> {layer, datum_id}
+  wsUp: false,
+  fittedDatum: null,
+  health: null,
+};
+
+/** Per-robot data and its map layers. */
+function robotView(name) {
+  let r = state.robots.get(name);
+  if (!r) {
+    r = {
+      name,
+      online: false,
+      lastSeenMs: null,
+      session: null,
+      datumId: null,
+      pose: null,
+      status: null,
+      path: [],
+      rates: {},
+      ages: {},
+      trail: [],
+      marker: null,
+      trailLine: null,
+      pathLine: null,
+      goalMarker: null,
+      lastError: null,
+      lastErrorAt: 0,
+    };
+    state.robots.set(name, r);
+  }
+  return r;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Map
+// ---------------------------------------------------------------------------------------------
+
+const map = L.map("map", {
+  crs: L.CRS.Simple,
+  minZoom: -4,
+  maxZoom: 7,
+  zoomSnap: 0.25,
+  zoomDelta: 0.5,
+  wheelPxPerZoomLevel: 90,
+  keyboard: false, // arrow keys drive the robot, they must not pan the map
+  attributionControl: false,
+  preferCanvas: false,
+});
+map.setView([0, 0], 2);
+L.control.scale({ imperial: false, position: "bottomright" }).addTo(map);
+
+const panes = ["tilesPane", "tracksPane", "routesPane", "pathsPane", "robotsPane"];
+panes.forEach((p, i) => {
+  map.createPane(p);
+  map.getPane(p).style.zIndex = String(300 + i * 10);
+});
+map.getPane("tilesPane").style.pointerEvents = "none";
+
+const ll = (x, y) => L.latLng(y, x);
+
+/** The datum record for the drawn map, or null. */
+function currentDatum() {
+  return state.datumId ? state.datums.get(state.datumId) || null : null;
+}
+
+/** Lat/lon text for a map point in the drawn datum, or a note why there is none. */
+function latLonText(x, y) {
+  const d = currentDatum();
+  if (!hasGeodetic(d)) return "no GNSS datum";
+  const g = enuToGeodetic(d, x, y, 0);
+  return formatLatLon(g.latDeg, g.lonDeg);
+}
+
+function fmtXY(x, y) {
+  return `x ${x.toFixed(2)} m, y ${y.toFixed(2)} m`;
+}
+
+const readout = document.getElementById("readout");
+map.on("mousemove", (ev) => {
+  const x = ev.latlng.lng;
+  const y = ev.latlng.lat;
+  readout.textContent = `${fmtXY(x, y)} · ${latLonText(x, y)}` + (state.datumId ? ` · ${state.datumId}` : "");
+});
+
+let clickPopup = null;
+map.on("click", (ev) => {
+  const x = ev.latlng.lng;
+  const y = ev.latlng.lat;
+  if (state.goalMode) {
+    sendGoal({ x, y });
+    return;
+  }
+  const div = document.createElement("div");
+  div.className = "pt-popup";
+  div.innerHTML = `<div class="mono">${fmtXY(x, y)}</div><div class="mono">${esc(latLonText(x, y))}</div>`;
+  if (state.selected) {
+    const b = document.createElement("button");
+    b.textContent = `Send ${state.selected} here`;
+    b.addEventListener("click", () => {
+      map.closePopup();
+      sendGoal({ x, y });
+    });
+    div.appendChild(b);
+  }
+  clickPopup = L.popup({ closeButton: true, autoPan: false }).setLatLng(ev.latlng).setContent(div).openOn(map);
+});
+
+// ----- tiles ---------------------------------------------------------------------------------
+
+function tileUrl(datumId, tx, ty, version) {
+  return withToken(`/api/map/${enc(datumId)}/tile/${tx}/${ty}.png?v=${version}`);
+}
+
+function tileBounds(tx, ty) {
+  const side = state.tileMeta.tile_cells * state.tileMeta.cell_size_m;
+  return L.latLngBounds(ll(tx * side, ty * side), ll((tx + 1) * side, (ty + 1) * side));
+}
+
+/** Shows tile (tx, ty) at `version`; the new PNG is preloaded so a live update never blinks. */
+function upsertTile(tx, ty, version) {
+  if (!state.tileMeta || !state.datumId) return;
+  const key = `${tx},${ty}`;
+  let t = state.tiles.get(key);
+  if (t && t.version >= version) return;
+  const datumId = state.datumId;
+  const url = tileUrl(datumId, tx, ty, version);
+  if (!t) {
+    t = { version, overlay: null };
+    state.tiles.set(key, t);
+  }
+  t.version = version;
+  const img = new Image();
+  img.onload = () => {
+    // A newer version or a datum switch may have overtaken this load.
+    if (state.datumId !== datumId || state.tiles.get(key) !== t || t.version !== version) return;
+    if (!t.overlay) {
+      t.overlay = L.imageOverlay(url, tileBounds(tx, ty), {
+        pane: "tilesPane",
+        className: "map-tile",
+        interactive: false,
+      }).addTo(map);
+    } else {
+      t.overlay.setUrl(url);
+    }
+  };
+  img.onerror = () => logMsg("warn", `tile ${datumId} ${tx},${ty} v${version} failed to load`);
+  img.src = url;
+}
+
+function clearTiles() {
+  for (const t of state.tiles.values()) if (t.overlay) t.overlay.remove();
+  state.tiles.clear();
+}
+
+/** Reloads the tile index of the drawn datum (on connect, datum switch, and as a slow safety net). */
+async function refreshTiles() {
+  const datumId = state.datumId;
+  if (!datumId) return;
+  try {
+    const idx = await api("GET", `/api/map/${enc(datumId)}/tiles`);
+    if (state.datumId !== datumId) return;
+    if (!state.tileMeta || state.tileMeta.cell_size_m !== idx.cell_size_m || state.tileMeta.tile_cells !== idx.tile_cells) {
+      clearTiles();
+      state.tileMeta = { cell_size_m: idx.cell_size_m, tile_cells: idx.tile_cells };
+    }
+    for (const t of idx.tiles) upsertTile(t.tx, t.ty, t.version);
+  } catch (e) {
+    logMsg("warn", e.message);
+  }
+}
+
+/** Switches the drawn datum: tiles, robots, tracks and routes of other datums are hidden. */
+function setDatum(datumId) {
+  if (datumId === state.datumId) return;
+  state.datumId = datumId;
+  clearTiles();
+  state.tileMeta = null;
+  for (const r of state.robots.values()) {
+    r.trail = [];
+    redrawRobot(r);
+  }
+  for (const [id, t] of state.trackLayers) {
+    if (t.datum_id !== datumId) {
+      t.layer.remove();
+      state.trackLayers.delete(id);
+    }
+  }
+  for (const [id, layer] of state.routeLayers) {
+    const rt = state.routes.find((x) => x.route_id === id);
+    if (!rt || rt.datum_id !== datumId) {
+      layer.remove();
+      state.routeLayers.delete(id);
+    }
+  }
+  renderDatumInfo();
+  renderRoutes();
+  renderSessions();
+  refreshTiles();
+  maybeFit();
+}
+
+/** Picks the datum to draw: the operator's choice, else the selected robot's, else the first known. */
+function chooseDatum() {
+  let want = state.datumManual || null;
+  if (!want && state.selected) want = robotView(state.selected).datumId;
+  if (!want) {
+    for (const r of state.robots.values()) if (r.datumId) { want = r.datumId; break; }
+  }
+  if (!want && state.datums.size) want = [...state.datums.keys()][0];
+  if (want) setDatum(want);
+}
+
+function maybeFit() {
+  if (!state.datumId || state.fittedDatum === state.datumId) return;
+  const d = state.datums.get(state.datumId);
+  const sel = state.selected ? robotView(state.selected) : null;
+  if (sel && sel.pose && sel.datumId === state.datumId) {
+    map.setView(ll(sel.pose.x_m, sel.pose.y_m), 3);
+    state.fittedDatum = state.datumId;
+  } else if (d && d.bounds_m && d.tiles > 0) {
+    fitDatum();
+    state.fittedDatum = state.datumId;
+  }
+}
+
+function fitDatum() {
+  const d = currentDatum();
+  if (d && d.bounds_m) {
+    const [x0, y0, x1, y1] = d.bounds_m;
+    map.fitBounds(L.latLngBounds(ll(x0, y0), ll(x1, y1)), { padding: [20, 20], maxZoom: 4 });
+  }
+}
+
+// ----- robots on the map ------------------------------------------------------------------------
+
+function robotIcon(r) {
+  const selected = r.name === state.selected;
+  return L.divIcon({
+    className: "robot-icon",
+    iconSize: [34, 34],
+    iconAnchor: [17, 17],
+    html:
+      `<div class="robot-marker${selected ? " selected" : ""}${r.online ? "" : " offline"}" data-robot="${esc(r.name)}">` +
+      `<svg viewBox="-17 -17 34 34" width="34" height="34"><g class="arrow">` +
+      `<circle r="13" class="ring"/><path d="M 12 0 L -8 -8 L -4 0 L -8 8 Z" class="body"/></g></svg>` +
+      `<span class="robot-label">${esc(r.name)}</span></div>`,
+  });
+}
+
+function setMarkerHeading(r) {
+  const el = r.marker && r.marker.getElement();
+  if (!el || !r.pose) return;
+  const g = el.querySelector("g.arrow");
+  // yaw is counter-clockwise from east; SVG rotation is clockwise on screen.
+  if (g) g.setAttribute("transform", `rotate(${(-r.pose.yaw_rad * 180) / Math.PI})`);
+}
+
+/** Creates/updates/removes the robot's marker, trail, path and goal for the drawn datum. */
+function redrawRobot(r) {
+  const visible = r.pose && r.datumId && r.datumId === state.datumId;
+  if (!visible) {
+    for (const k of ["marker", "trailLine", "pathLine", "goalMarker"]) {
+      if (r[k]) { r[k].remove(); r[k] = null; }
+    }
+    return;
+  }
+  const pos = ll(r.pose.x_m, r.pose.y_m);
+  if (!r.marker) {
+    r.marker = L.marker(pos, { icon: robotIcon(r), pane: "robotsPane", keyboard: false, zIndexOffset: 1000 })
+      .addTo(map)
+      .on("click", () => selectRobot(r.name));
+    r.marker.bindTooltip(() => robotTooltip(r), { direction: "top", offset: [0, -14] });
+  } else {
+    r.marker.setLatLng(pos);
+  }
+  setMarkerHeading(r);
+
+  if (!r.trailLine) {
+    r.trailLine = L.polyline([], { pane: "tracksPane", className: "robot-trail", interactive: false }).addTo(map);
+  }
+  r.trailLine.setLatLngs(r.trail.map(([x, y]) => ll(x, y)));
+
+  if (r.path && r.path.length >= 2) {
+    const pts = r.path.map(([x, y]) => ll(x, y));
+    if (!r.pathLine) {
+      r.pathLine = L.polyline(pts, { pane: "pathsPane", className: "robot-path", interactive: false }).addTo(map);
+    } else {
+      r.pathLine.setLatLngs(pts);
+    }
+  } else if (r.pathLine) {
+    r.pathLine.remove();
+    r.pathLine = null;
+  }
+
+  const goal = r.status && r.status.goal_m && isActiveMission(r.status.mission) ? r.status.goal_m : null;
+  if (goal) {
+    const g = ll(goal[0], goal[1]);
+    if (!r.goalMarker) {
+      r.goalMarker = L.marker(g, {
+        pane: "pathsPane",
+        keyboard: false,
+        icon: L.divIcon({ className: "goal-icon", iconSize: [22, 22], iconAnchor: [11, 11], html: `<div class="goal-marker" data-robot="${esc(r.name)}">⚑</div>` }),
+      }).addTo(map);
+      r.goalMarker.bindTooltip(() => {
+        const gm = r.status && r.status.goal_m;
+        return gm ? `${esc(r.name)} goal<br>${fmtXY(gm[0], gm[1])}<br>${esc(latLonText(gm[0], gm[1]))}` : "";
+      });
+    } else {
+      r.goalMarker.setLatLng(g);
+    }
+  } else if (r.goalMarker) {
+    r.goalMarker.remove();
+    r.goalMarker = null;
+  }
+}
+
+function isActiveMission(m) {
+  return m === "Planning" || m === "Driving" || m === "Blocked" || m === "Paused" || m === "NoPath";
+}
+
+function robotTooltip(r) {
+  if (!r.pose) return esc(r.name);
+  const p = r.pose;
+  return `<b>${esc(r.name)}</b><br>${fmtXY(p.x_m, p.y_m)}<br>${esc(latLonText(p.x_m, p.y_m))}<br>` +
+    `v ${Number(p.v_mps).toFixed(2)} m/s · yaw ${((p.yaw_rad * 180) / Math.PI).toFixed(0)}°`;
+}
+
+function onPose(name, datumId, pose) {
+  const r = robotView(name);
+  if (datumId && r.datumId !== datumId) {
+    r.datumId = datumId;
+    r.trail = [];
+  }
+  r.pose = pose;
+  r.online = true;
+  r.lastSeenMs = Date.now();
+  const last = r.trail[r.trail.length - 1];
+  if (!last || Math.hypot(pose.x_m - last[0], pose.y_m - last[1]) >= TRAIL_MIN_STEP_M) {
+    r.trail.push([pose.x_m, pose.y_m]);
+    if (r.trail.length > TRAIL_MAX_POINTS) r.trail.splice(0, r.trail.length - TRAIL_MAX_POINTS);
+  }
+  if (!state.selected) selectRobot(name);
+  if (!state.datumId) chooseDatum();
+  redrawRobot(r);
+  if (r.name === state.selected) {
+    maybeFit();
+    if (state.follow) followRobot(r);
+  }
+}
+
+function followRobot(r) {
+  if (!r.pose || r.datumId !== state.datumId) return;
+  const p = ll(r.pose.x_m, r.pose.y_m);
+  const inner = map.getBounds().pad(-0.25);
+  if (!inner.contains(p)) map.panTo(p, { animate: true, duration: 0.3 });
+}
+
+// ---------------------------------------------------------------------------------------------
+// Robot list and health
+// ---------------------------------------------------------------------------------------------
+
+const robotList = document.getElementById("robot-list");
+
+function esc(s) {
+  return String(s ?? "").replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]);
+}
+
+function fmtAge(ms) {
+  if (ms === null || ms === undefined || !Number.isFinite(ms)) return "–";
+  if (ms < 1000) return `${Math.round(ms)} ms`;
+  if (ms < 120000) return `${(ms / 1000).toFixed(1)} s`;
+  if (ms < 7200000) return `${Math.round(ms / 60000)} min`;
+  return `${(ms / 3600000).toFixed(1)} h`;
+}
+
+function ageClass(ms) {
+  if (ms === null || ms === undefined || !Number.isFinite(ms)) return "bad";
+  if (ms > STALE_BAD_MS) return "bad";
+  if (ms > STALE_WARN_MS) return "warn";
+  return "ok";
+}
+
+const FIX_CLASS = { RtkFixed: "ok", RtkFloat: "warn", Dgps: "warn", Single: "warn", NoFix: "bad" };
+const MISSION_CLASS = {
+  Idle: "muted", Planning: "info", Driving: "ok", Blocked: "warn", NoPath: "bad", Reached: "ok", Stopped: "bad", Paused: "warn",
+};
+
+function renderRobots() {
+  const names = [...state.robots.keys()].sort();
+  document.getElementById("robot-count").textContent = names.length ? `(${names.filter((n) => state.robots.get(n).online).length}/${names.length} online)` : "";
+  if (!names.length) {
+    robotList.innerHTML = `<div class="muted">waiting for robots…</div>`;
+    return;
+  }
+  const now = Date.now();
+  robotList.innerHTML = names.map((n) => {
+    const r = state.robots.get(n);
+    const s = r.status;
+    const seen = r.lastSeenMs ? Math.max(0, now - r.lastSeenMs) : null;
+    const fix = (r.pose && r.pose.fix) || (s && s.fix) || "NoFix";
+    const slam = s ? s.slam : null;
+    const slamTxt = !slam ? "–" : slam.ok ? `ok ${Math.round(slam.inlier_ratio * 100)}%${slam.degenerate ? " degenerate" : ""}` : `FAIL (${slam.failures})`;
+    const slamCls = !slam ? "muted" : slam.ok && !slam.degenerate ? "ok" : slam.ok ? "warn" : "bad";
+    const mission = s ? s.mission : "–";
+    const ages = ["pose", "status", "tile"].map((k) => {
+      const a = r.ages ? r.ages[k] : undefined;
+      const hz = r.rates && Number.isFinite(r.rates[k]) ? ` ${r.rates[k].toFixed(1)}Hz` : "";
+      return `<span class="age ${ageClass(a)}" title="${k}: last message age and rate">${k} ${fmtAge(a)}${hz}</span>`;
+    }).join("");
+    const route = s && s.route ? `<div class="kv"><span>route</span><span>${esc(s.route.route_id)} ${s.route.waypoint}/${s.route.waypoints} · ${Number(s.route.distance_left_m).toFixed(1)} m left${s.route.detours ? ` · ${s.route.detours} detours` : ""}</span></div>` : "";
+    const err = s && s.last_error ? `<div class="robot-error" title="last error reported by the robot">⚠ ${esc(s.last_error)}</div>` : "";
+    const counters = s ? [
+      s.collisions ? `<span class="bad">collisions ${s.collisions}</span>` : "",
+      s.commands_refused ? `<span class="warn">refused ${s.commands_refused}</span>` : "",
+      s.decode_errors ? `<span class="warn">decode err ${s.decode_errors}</span>` : "",
+    ].filter(Boolean).join(" ") : "";
+    return `<div class="robot-card${n === state.selected ? " selected" : ""}${r.online ? "" : " offline"}" data-robot="${esc(n)}" tabindex="0">
+      <div class="robot-head">
+        <span class="dot ${r.online ? "ok" : "bad"}"></span>
+        <span class="robot-name">${esc(n)}</span>
+        <span class="muted small">${r.online ? "online" : "offline"} · ${seen === null ? "never seen" : fmtAge(seen) + " ago"}</span>
+        ${s && s.recording ? `<span class="rec" title="recording a route">● REC</span>` : ""}
+      </div>
+      <div class="kv"><span>mission</span><span><b class="${MISSION_CLASS[mission] || ""}" data-field="mission">${esc(mission)}</b>${s && s.reason ? ` <span class="muted" data-field="reason">${esc(s.reason)}</span>` : ""}${s ? ` <span class="muted">(${esc(s.mode)})</span>` : ""}</span></div>
+      <div class="kv"><span>GNSS</span><span class="${FIX_CLASS[fix] || ""}" data-field="fix">${esc(fix)}${s && s.gnss_lost ? " · LOST" : ""}</span></div>
+      <div class="kv"><span>SLAM</span><span class="${slamCls}" data-field="slam">${esc(slamTxt)}</span></div>
+      <div class="kv"><span>speed</span><span>${r.pose ? Number(r.pose.v_mps).toFixed(2) : "–"} m/s${s ? ` · limit ${Number(s.speed_limit_mps).toFixed(1)}` : ""}${s && s.scan_hz ? ` · scan ${s.scan_hz.toFixed(1)} Hz` : ""}</span></div>
+      ${route}
+      <div class="ages">${ages}</div>
+      ${counters ? `<div class="counters">${counters}</div>` : ""}
+      ${err}
+    </div>`;
+  }).join("");
+}
+
+robotList.addEventListener("click", (ev) => {
+  const card = ev.target.closest(".robot-card");
+  if (card) selectRobot(card.dataset.robot);
+});
+
+function selectRobot(name) {
+  if (state.selected === name) return;
+  const prev = state.selected ? state.robots.get(state.selected) : null;
+  state.selected = name;
+  for (const r of [prev, robotView(name)]) {
+    if (r && r.marker) r.marker.setIcon(robotIcon(r)), setMarkerHeading(r);
+  }
+  document.getElementById("cmd-robot").textContent = name;
+  document.getElementById("goal-banner-robot").textContent = name;
+  document.getElementById("stop-btn").textContent = `STOP ${name}`;
+  const r = robotView(name);
+  if (r.status) syncSpeedSlider(r.status.speed_limit_mps);
+  if (!state.datumManual) {
+    if (r.datumId) setDatum(r.datumId);
+    else chooseDatum();
+  }
+  renderRobots();
+  renderSessions();
+  refreshSessions();
+  updateRecordButton();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Log and toasts (errors are never swallowed)
+// ---------------------------------------------------------------------------------------------
+
+const logEl = document.getElementById("log");
+const toastsEl = document.getElementById("toasts");
+
+function logMsg(level, text, toast = level === "error") {
+  const li = document.createElement("li");
+  li.className = level;
+  const t = new Date();
+  li.innerHTML = `<span class="ts">${t.toTimeString().slice(0, 8)}</span> ${esc(text)}`;
+  logEl.prepend(li);
+  while (logEl.children.length > 200) logEl.lastChild.remove();
+  if (level === "error" || level === "warn") console.warn(text);
+  if (toast) showToast(level, text);
+}
+
+function showToast(level, text) {
+  const div = document.createElement("div");
+  div.className = `toast ${level}`;
+  div.textContent = text;
+  div.title = "click to dismiss";
+  div.addEventListener("click", () => div.remove());
+  toastsEl.prepend(div);
+  while (toastsEl.children.length > 5) toastsEl.lastChild.remove();
+  setTimeout(() => div.remove(), level === "error" ? 12000 : 4000);
+}
+
+/** A robot-side error, from WS `error` or from `status.last_error`; shown once per change. */
+function robotError(name, message) {
+  const r = robotView(name);
+  const now = Date.now();
+  if (r.lastError === message && now - r.lastErrorAt < 30000) return;
+  r.lastError = message;
+  r.lastErrorAt = now;
+  logMsg("error", `${name}: ${message}`);
+}
+
+document.getElementById("log-clear").addEventListener("click", () => (logEl.innerHTML = ""));
+
+// ---------------------------------------------------------------------------------------------
+// Commands
+// ---------------------------------------------------------------------------------------------
+
+async function command(name, what, body, { quiet = false } = {}) {
+  if (!name) {
+    logMsg("warn", "select a robot first", true);
+    return false;
+  }
+  try {
+    await api("POST", `/api/robots/${enc(name)}/${what}`, body);
+    if (!quiet) logMsg("info", `${name}: ${what} ${summarize(body)} sent`);
+    return true;
+  } catch (e) {
+    logMsg("error", e.message);
+    return false;
+  }
+}
+
+function summarize(body) {
+  if (!body) return "";
+  if (body.action) return body.action + (body.direction ? ` ${body.direction}` : "") + (body.name ? ` "${body.name}"` : "");
+  if ("x" in body) return `(${body.x.toFixed(2)}, ${body.y.toFixed(2)})`;
+  if ("lat" in body) return `(${body.lat.toFixed(7)}, ${body.lon.toFixed(7)})`;
+  if ("limit_mps" in body) return `${body.limit_mps} m/s`;
+  return "";
+}
+
+let pendingGoal = null;
+
+async function sendGoal(target) {
+  const name = state.selected;
+  if (!name) {
+    logMsg("warn", "select a robot first", true);
+    return;
+  }
+  let body;
+  let xy = null;
+  if ("x" in target) {
+    body = { x: target.x, y: target.y };
+    xy = [target.x, target.y];
+  } else {
+    body = { lat: target.lat, lon: target.lon };
+    const d = currentDatum();
+    if (hasGeodetic(d)) {
+      const e = geodeticToEnu(d, target.lat, target.lon);
+      xy = [e.e, e.n];
+    }
+  }
+  if (pendingGoal) pendingGoal.remove();
+  if (xy) {
+    pendingGoal = L.circleMarker(ll(xy[0], xy[1]), { pane: "pathsPane", radius: 7, className: "pending-goal" })
+      .bindTooltip(`goal sent<br>${fmtXY(xy[0], xy[1])}<br>${esc(latLonText(xy[0], xy[1]))}`)
+      .addTo(map);
+    const pg = pendingGoal;
+    setTimeout(() => { if (pendingGoal === pg) { pg.remove(); pendingGoal = null; } }, 5000);
+  }
+  await command(name, "goal", body);
+}
+
+async function stopRobot(name, reason) {
+  await command(name, "stop", { reason });
+}
+
+document.getElementById("stop-btn").addEventListener("click", () => {
+  if (state.selected) stopRobot(state.selected, "operator STOP button");
+  else stopAll();
+});
+document.getElementById("stop-all-btn").addEventListener("click", stopAll);
+function stopAll() {
+  const names = [...state.robots.keys()];
+  if (!names.length) logMsg("warn", "no robots to stop", true);
+  for (const n of names) stopRobot(n, "operator STOP ALL");
+}
+
+// goal mode
+const goalBtn = document.getElementById("goal-mode-btn");
+function setGoalMode(on) {
+  state.goalMode = on && !!state.selected;
+  if (on && !state.selected) logMsg("warn", "select a robot first", true);
+  goalBtn.classList.toggle("active", state.goalMode);
+  document.getElementById("goal-banner").classList.toggle("hidden", !state.goalMode);
+  document.getElementById("map").classList.toggle("goal-cursor", state.goalMode);
+}
+goalBtn.addEventListener("click", () => setGoalMode(!state.goalMode));
+
+document.getElementById("goal-form").addEventListener("submit", (ev) => {
+  ev.preventDefault();
+  const kind = document.getElementById("goal-kind").value;
+  const pair = parsePair(document.getElementById("goal-input").value);
+  if (!pair) {
+    logMsg("error", "goal: type two numbers, e.g. \"12.5, -3\"");
+    return;
+  }
+  if (kind === "xy") {
+    sendGoal({ x: pair[0], y: pair[1] });
+  } else {
+    const [lat, lon] = pair;
+    if (Math.abs(lat) > 90 || Math.abs(lon) > 180) {
+      logMsg("error", "goal: latitude must be within ±90°, longitude within ±180°");
+      return;
+    }
+    sendGoal({ lat, lon });
+  }
+});
+
+// follow
+const followChk = document.getElementById("follow-chk");
+followChk.addEventListener("change", () => {
+  state.follow = followChk.checked;
+  if (state.follow && state.selected) followRobot(robotView(state.selected));
+});
+
+// speed limit
+const speedSlider = document.getElementById("speed-slider");
+const speedValue = document.getElementById("speed-value");
+let speedDragging = false;
+speedSlider.addEventListener("input", () => {
+  speedDragging = true;
+  speedValue.textContent = `${Number(speedSlider.value).toFixed(1)} m/s`;
+});
+speedSlider.addEventListener("change", async () => {
+  speedDragging = false;
+  await command(state.selected, "speed", { limit_mps: Number(speedSlider.value) });
+});
+function syncSpeedSlider(limit) {
+  if (speedDragging || !Number.isFinite(limit) || limit <= 0) return;
+  speedSlider.value = String(limit);
+  speedValue.textContent = `${Number(limit).toFixed(1)} m/s`;
+}
+
+// pause / resume / cancel
+for (const action of ["pause", "resume", "cancel"]) {
+  document.getElementById(`${action}-btn`).addEventListener("click", () => command(state.selected, "route", { action }));
+}
+
+// recording
+const recordBtn = document.getElementById("record-btn");
+function isRecording() {
+  const r = state.selected ? state.robots.get(state.selected) : null;
+  return !!(r && r.status && r.status.recording);
+}
+function updateRecordButton() {
+  const rec = isRecording();
+  recordBtn.textContent = rec ? "■ Stop recording" : "● Record";
+  recordBtn.classList.toggle("recording", rec);
+  document.getElementById("record-name").disabled = rec;
+}
+document.getElementById("record-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  if (isRecording()) {
+    await command(state.selected, "route", { action: "stop_recording" });
+  } else {
+    const input = document.getElementById("record-name");
+    const name = input.value.trim() || `route ${new Date().toISOString().slice(0, 16).replace("T", " ")}`;
+    await command(state.selected, "route", { action: "record", name });
+  }
+});
+
+// ---------------------------------------------------------------------------------------------
+// Keyboard drive with deadman: commands flow every 100 ms while a key is held; release -> stop.
+// ---------------------------------------------------------------------------------------------
+
+const DRIVE_KEYS = {
+  ArrowUp: "fwd", KeyW: "fwd", ArrowDown: "back", KeyS: "back", ArrowLeft: "left", KeyA: "left", ArrowRight: "right", KeyD: "right",
+};
+const held = new Set();
+let driveTimer = null;
+let driveSeq = 0;
+let driveErrorAt = 0;
+const hud = document.getElementById("drive-hud");
+
+function driveVector() {
+  const limit = Number(speedSlider.value) || 0.5;
+  const f = (held.has("fwd") ? 1 : 0) - (held.has("back") ? 1 : 0);
+  const t = (held.has("left") ? 1 : 0) - (held.has("right") ? 1 : 0);
+  return { v_mps: f * limit, omega_rps: t * OMEGA_MAX_RPS };
+}
+
+async function driveTick() {
+  const name = state.selected;
+  if (!name) return;
+  const v = driveVector();
+  driveSeq++;
+  hud.textContent = `DRIVE ${name} · v ${v.v_mps.toFixed(2)} m/s · ω ${v.omega_rps.toFixed(2)} rad/s`;
+  try {
+    await api("POST", `/api/robots/${enc(name)}/drive`, { v_mps: v.v_mps, omega_rps: v.omega_rps, deadman: true });
+  } catch (e) {
+    // Every 100 ms would flood the log; one toast per 2 s is enough to be seen.
+    if (Date.now() - driveErrorAt > 2000) {
+      driveErrorAt = Date.now();
+      logMsg("error", e.message);
+    }
+  }
+}
+
+function driveStart() {
+  if (!state.selected) {
+    logMsg("warn", "select a robot first", true);
+    held.clear();
+    return;
+  }
+  if (driveTimer) return;
+  hud.classList.remove("hidden");
+  driveTick();
+  driveTimer = setInterval(driveTick, DRIVE_PERIOD_MS);
+}
+
+function driveRelease() {
+  if (!driveTimer) return;
+  clearInterval(driveTimer);
+  driveTimer = null;
+  hud.classList.add("hidden");
+  const name = state.selected;
+  // Explicit zero command with the deadman released, so the robot stops at once instead of
+  // waiting for its 300 ms silence timeout.
+  if (name) {
+    api("POST", `/api/robots/${enc(name)}/drive`, { v_mps: 0, omega_rps: 0, deadman: false }).catch((e) => logMsg("error", e.message));
+  }
+}
+
+function typingInField(ev) {
+  const t = ev.target;
+  return t && (t.tagName === "INPUT" && t.type !== "range" && t.type !== "checkbox" || t.tagName === "TEXTAREA" || t.tagName === "SELECT");
+}
+
+window.addEventListener("keydown", (ev) => {
+  if (typingInField(ev) || ev.ctrlKey || ev.metaKey || ev.altKey) return;
+  const dir = DRIVE_KEYS[ev.code];
+  if (dir) {
+    ev.preventDefault();
+    if (!held.has(dir)) {
+      held.add(dir);
+      driveStart();
+    }
+    return;
+  }
+  if (ev.repeat) return;
+  if (ev.code === "Space") {
+    ev.preventDefault();
+    document.getElementById("stop-btn").click();
+  } else if (ev.code === "KeyG") {
+    setGoalMode(!state.goalMode);
+  } else if (ev.code === "KeyF") {
+    followChk.checked = !followChk.checked;
+    followChk.dispatchEvent(new Event("change"));
+  } else if (ev.code === "Escape") {
+    setGoalMode(false);
+    map.closePopup();
+  }
+});
+
+window.addEventListener("keyup", (ev) => {
+  const dir = DRIVE_KEYS[ev.code];
+  if (!dir) return;
+  held.delete(dir);
+  if (held.size === 0) driveRelease();
+});
+
+// Losing focus loses keyups: treat it as releasing every key (deadman).
+window.addEventListener("blur", () => {
+  held.clear();
+  driveRelease();
+});
+document.addEventListener("visibilitychange", () => {
+  if (document.hidden) {
+    held.clear();
+    driveRelease();
+  }
+});
+
+// ---------------------------------------------------------------------------------------------
+// Routes and sessions
+// ---------------------------------------------------------------------------------------------
+
+const routeList = document.getElementById("route-list");
+
+async function refreshRoutes() {
+  try {
+    state.routes = (await api("GET", "/api/routes")) || [];
+    renderRoutes();
+  } catch (e) {
+    logMsg("warn", e.message);
+  }
+}
+
+function renderRoutes() {
+  if (!state.routes.length) {
+    routeList.innerHTML = `<div class="muted">no routes yet</div>`;
+    return;
+  }
+  routeList.innerHTML = state.routes.map((rt) => {
+    const shown = state.routeLayers.has(rt.route_id);
+    const other = rt.datum_id !== state.datumId;
+    return `<div class="item" data-route="${esc(rt.route_id)}">
+      <div class="item-head"><b>${esc(rt.name || rt.route_id)}</b> <span class="muted small">${esc(rt.robot)} · ${Number(rt.length_m).toFixed(0)} m · ${rt.points} pts${other ? ` · ${esc(rt.datum_id)}` : ""}</span></div>
+      <div class="row tight">
+        <button data-act="show" class="${shown ? "active" : ""}">${shown ? "hide" : "show"}</button>
+        <button data-act="reverse" title="Drive the route backwards to its start (return)">⟲ return</button>
+        <button data-act="forward" title="Drive the route again from its start">⟳ repeat</button>
+        <a class="small" href="${esc(withToken(`/api/routes/${enc(rt.route_id)}/gpx`))}" download>gpx</a>
+      </div></div>`;
+  }).join("");
+}
+
+routeList.addEventListener("click", async (ev) => {
+  const btn = ev.target.closest("button");
+  const item = ev.target.closest(".item");
+  if (!btn || !item) return;
+  const id = item.dataset.route;
+  const act = btn.dataset.act;
+  if (act === "show") toggleRoute(id);
+  else if (act === "reverse" || act === "forward") {
+    await command(state.selected, "route", { action: "repeat", route_id: id, direction: act });
+    if (!state.routeLayers.has(id)) toggleRoute(id);
+  }
+});
+
+async function toggleRoute(id) {
+  const existing = state.routeLayers.get(id);
+  if (existing) {
+    existing.remove();
+    state.routeLayers.delete(id);
+    renderRoutes();
+    return;
+  }
+  const summary = state.routes.find((r) => r.route_id === id);
+  try {
+    const route = await api("GET", `/api/routes/${enc(id)}`);
+    if (summary && summary.datum_id && summary.datum_id !== state.datumId) {
+      state.datumManual = summary.datum_id;
+      document.getElementById("datum-select").value = summary.datum_id;
+      setDatum(summary.datum_id);
+    }
+    const pts = (route.points || []).map((p) => ll(p.x_m, p.y_m));
+    const line = L.polyline(pts, { pane: "routesPane", className: "route-line" })
+      .bindTooltip(`route ${esc(route.name || id)}`, { sticky: true });
+    const layer = L.featureGroup([line]);
+    if (pts.length) {
+      layer.addLayer(L.circleMarker(pts[0], { pane: "routesPane", radius: 5, className: "route-start" }).bindTooltip(`start of ${esc(route.name || id)}`));
+    }
+    layer.addTo(map);
+    state.routeLayers.set(id, layer);
+    renderRoutes();
+  } catch (e) {
+    logMsg("error", e.message);
+  }
+}
+
+const sessionList = document.getElementById("session-list");
+const sessionsSelectedOnly = document.getElementById("sessions-selected-only");
+sessionsSelectedOnly.addEventListener("change", () => refreshSessions());
+
+async function refreshSessions() {
+  const q = sessionsSelectedOnly.checked && state.selected ? `?robot=${enc(state.selected)}` : "";
+  try {
+    state.sessions = (await api("GET", `/api/sessions${q}`)) || [];
+    renderSessions();
+  } catch (e) {
+    logMsg("warn", e.message);
+  }
+}
+
+function renderSessions() {
+  if (!state.sessions.length) {
+    sessionList.innerHTML = `<div class="muted">no sessions</div>`;
+    return;
+  }
+  sessionList.innerHTML = state.sessions.slice(0, 50).map((s) => {
+    const shown = state.trackLayers.has(s.session_id);
+    const start = new Date(s.start_unix_ms);
+    const dur = s.last_unix_ms && s.start_unix_ms ? fmtAge(s.last_unix_ms - s.start_unix_ms) : "–";
+    return `<div class="item" data-session="${esc(s.session_id)}">
+      <div class="item-head">${s.live ? `<span class="live">LIVE</span>` : ""} <b>${esc(s.robot)}</b>
+        <span class="muted small">${start.toLocaleDateString()} ${start.toTimeString().slice(0, 5)} · ${dur} · ${esc(s.source)} · ${esc(s.datum_id)}</span></div>
+      <div class="row tight"><button data-act="track" class="${shown ? "active" : ""}">${shown ? "hide track" : "show track"}</button>
+      <span class="muted small mono">${esc(s.session_id)}</span></div></div>`;
+  }).join("");
+}
+
+sessionList.addEventListener("click", (ev) => {
+  const btn = ev.target.closest("button");
+  const item = ev.target.closest(".item");
+  if (btn && item) toggleTrack(item.dataset.session);
+});
+
+async function toggleTrack(id) {
+  const existing = state.trackLayers.get(id);
+  if (existing) {
+    existing.layer.remove();
+    state.trackLayers.delete(id);
+    renderSessions();
+    return;
+  }
+  try {
+    const tr = await api("GET", `/api/sessions/${enc(id)}/track`);
+    if (tr.datum_id && tr.datum_id !== state.datumId) {
+      state.datumManual = tr.datum_id;
+      document.getElementById("datum-select").value = tr.datum_id;
+      setDatum(tr.datum_id);
+    }
+    const pts = (tr.points || []).map((p) => ll(p[1], p[2]));
+    if (!pts.length) {
+      logMsg("warn", `session ${id} has no track points`, true);
+      return;
+    }
+    const layer = L.polyline(pts, { pane: "tracksPane", className: "session-track" })
+      .bindTooltip(`${esc(tr.robot)} · ${esc(id)}`, { sticky: true })
+      .addTo(map);
+    state.trackLayers.set(id, { layer, datum_id: tr.datum_id });
+    map.fitBounds(layer.getBounds(), { padding: [30, 30], maxZoom: 4 });
+    renderSessions();
+  } catch (e) {
+    logMsg("error", e.message);
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Datums
+// ---------------------------------------------------------------------------------------------
+
+const datumSelect = document.getElementById("datum-select");
+datumSelect.addEventListener("change", () => {
+  state.datumManual = datumSelect.value;
+  if (state.datumManual) setDatum(state.datumManual);
+  else chooseDatum();
+});
+document.getElementById("fit-btn").addEventListener("click", fitDatum);
+
+async function refreshDatums() {
+  try {
+    const list = (await api("GET", "/api/datums")) || [];
+    state.datums = new Map(list.map((d) => [d.datum_id, d]));
+    const cur = datumSelect.value;
+    datumSelect.innerHTML = `<option value="">auto (selected robot)</option>` +
+      list.map((d) => `<option value="${esc(d.datum_id)}">${esc(d.datum_id)} · ${d.tiles} tiles</option>`).join("");
+    datumSelect.value = state.datums.has(cur) ? cur : "";
+    if (!state.datumId) chooseDatum();
+    maybeFit();
+    renderDatumInfo();
+  } catch (e) {
+    logMsg("warn", e.message);
+  }
+}
+
+function renderDatumInfo() {
+  const d = currentDatum();
+  const el = document.getElementById("datum-info");
+  if (!state.datumId) el.textContent = "no map yet";
+  else if (!d) el.textContent = state.datumId;
+  else if (hasGeodetic(d)) el.textContent = `${d.datum_id}: origin ${formatLatLon(d.lat_deg, d.lon_deg)}, h ${Number(d.h_m).toFixed(2)} m · ${d.tiles} tiles`;
+  else el.textContent = `${d.datum_id}: local frame without GNSS · ${d.tiles} tiles`;
+}
+
+// ---------------------------------------------------------------------------------------------
+// REST polling (health, message ages) and the WebSocket (live updates)
+// ---------------------------------------------------------------------------------------------
+
+function applyRobotRest(j) {
+  const r = robotView(j.robot);
+  r.online = !!j.online;
+  r.lastSeenMs = j.last_seen_unix_ms ?? r.lastSeenMs;
+  r.session = j.session ?? r.session;
+  if (j.datum_id && j.datum_id !== r.datumId) {
+    r.datumId = j.datum_id;
+    r.trail = [];
+  }
+  if (j.pose && (!r.pose || j.pose.t_unix_ms >= r.pose.t_unix_ms)) r.pose = j.pose;
+  if (j.status) applyStatus(r, j.status);
+  if (Array.isArray(j.path)) r.path = j.path;
+  r.rates = j.rates_hz || {};
+  r.ages = j.ages_ms || {};
+}
+
+function applyStatus(r, s) {
+  r.status = s;
+  if (s.last_error) robotError(r.name, s.last_error);
+  if (r.name === state.selected) {
+    syncSpeedSlider(s.speed_limit_mps);
+    updateRecordButton();
+  }
+}
+
+async function refreshRobots() {
+  try {
+    const list = (await api("GET", "/api/robots")) || [];
+    for (const j of list) applyRobotRest(j);
+    if (!state.selected && list.length) selectRobot([...list].sort((a, b) => Number(b.online) - Number(a.online))[0].robot);
+    if (!state.datumId) chooseDatum();
+    for (const r of state.robots.values()) redrawRobot(r);
+    maybeFit();
+    renderRobots();
+  } catch (e) {
+    logMsg("warn", e.message);
+  }
+}
+
+async function refreshHealth() {
+  try {
+    const h = await api("GET", "/api/health");
+    state.health = h;
+    document.getElementById("footer").textContent =
+      `station ${h.version ?? "?"} · ${h.robots_online} online · ${h.tiles} tiles · ${h.decode_errors} decode errors` + (TOKEN ? " · token" : "");
+  } catch (e) {
+    document.getElementById("footer").textContent = `station unreachable: ${e.message}`;
+  }
+}
+
+async function refreshAll() {
+  await Promise.all([refreshDatums(), refreshRobots(), refreshRoutes(), refreshHealth()]);
+  await Promise.all([refreshTiles(), refreshSessions()]);
+}
+
+const connEl = document.getElementById("conn");
+const banner = document.getElementById("banner");
+let ws = null;
+let wsBackoffMs = 500;
+let renderQueued = false;
+
+function queueRender() {
+  if (renderQueued) return;
+  renderQueued = true;
+  setTimeout(() => {
+    renderQueued = false;
+    renderRobots();
+  }, 250);
+}
+
+function setConn(up, text) {
+  state.wsUp = up;
+  connEl.textContent = text;
+  connEl.className = `conn ${up ? "conn-up" : "conn-down"}`;
+  banner.classList.toggle("hidden", up);
+  if (!up) banner.textContent = `Connection to the station lost (${text}); retrying… The robot keeps its last command until its own timeouts stop it.`;
+}
+
+function connectWs() {
+  const proto = location.protocol === "https:" ? "wss:" : "ws:";
+  ws = new WebSocket(withToken(`${proto}//${location.host}/api/ws`));
+  ws.onopen = () => {
+    wsBackoffMs = 500;
+    setConn(true, "live");
+  };
+  ws.onmessage = (ev) => {
+    let m;
+    try {
+      m = JSON.parse(ev.data);
+    } catch {
+      logMsg("warn", "unreadable WebSocket message from the station");
+      return;
+    }
+    handleWs(m);
+  };
+  ws.onclose = (ev) => {
+    setConn(false, ev.code === 1008 || ev.code === 4401 ? "unauthorized" : "offline");
+    setTimeout(connectWs, wsBackoffMs);
+    wsBackoffMs = Math.min(wsBackoffMs * 2, 5000);
+  };
+  ws.onerror = () => {
+    // onclose follows and reconnects.
+  };
+}
+
+function handleWs(m) {
+  switch (m.type) {
+    case "hello":
+      logMsg("info", `connected to station ${m.version ?? ""}`);
+      refreshAll();
+      break;
+    case "robot": {
+      const r = robotView(m.robot);
+      const was = r.online;
+      r.online = !!m.online;
+      r.lastSeenMs = m.last_seen_unix_ms ?? r.lastSeenMs;
+      if (was !== r.online) logMsg(r.online ? "info" : "warn", `${m.robot} is ${r.online ? "online" : "OFFLINE"}`, !r.online);
+      if (r.marker) r.marker.setIcon(robotIcon(r)), setMarkerHeading(r);
+      queueRender();
+      break;
+    }
+    case "session": {
+      const r = robotView(m.robot);
+      r.session = m.session;
+      if (m.datum_id && m.datum_id !== r.datumId) {
+        r.datumId = m.datum_id;
+        r.trail = [];
+      }
+      logMsg("info", `${m.robot}: new session ${m.session && m.session.session_id}`);
+      refreshDatums();
+      refreshSessions();
+      if (!state.datumManual && m.robot === state.selected) setDatum(m.datum_id);
+      queueRender();
+      break;
+    }
+    case "pose":
+      onPose(m.robot, m.datum_id, m.pose);
+      break;
+    case "status": {
+      const r = robotView(m.robot);
+      applyStatus(r, m.status);
+      redrawRobot(r);
+      queueRender();
+      break;
+    }
+    case "path": {
+      const r = robotView(m.robot);
+      r.path = m.points || [];
+      redrawRobot(r);
+      break;
+    }
+    case "tile":
+      if (m.datum_id === state.datumId) {
+        if (state.tileMeta) upsertTile(m.tx, m.ty, m.version);
+        else refreshTiles();
+      }
+      if (!state.datums.has(m.datum_id)) refreshDatums();
+      break;
+    case "route":
+      logMsg("info", `route stored: ${m.route && (m.route.name || m.route.route_id)}`, true);
+      refreshRoutes();
+      break;
+    case "error":
+      robotError(m.robot, m.message);
+      break;
+    default:
+      break;
+  }
+}
+
+// Health and message ages come from REST once a second; the tile index and datum bounds slowly,
+// as a safety net for WebSocket messages lost while reconnecting.
+setInterval(() => { refreshRobots(); }, 1000);
+setInterval(() => { refreshHealth(); refreshDatums(); refreshTiles(); }, 5000);
+setInterval(() => { refreshSessions(); }, 15000);
+
+setConn(false, "connecting");
+connectWs();
+refreshAll();
+
+// Handle for the browser tests and for poking around in the console; not used by the page itself.
+window.terranav = { map, state, ll };
