@@ -125,22 +125,26 @@ pub fn register(
         let mid = abs_res.len() / 2;
         let (_, med, _) = abs_res.select_nth_unstable_by(mid, f32::total_cmp);
         let scale = (1.4826 * f64::from(*med)).max(cfg.min_residual_scale_m);
+        // Linearise about the sensor position, not the map origin: far from the origin rotations
+        // would otherwise look like translations and the Hessian's spectrum would mean nothing.
+        let c = pose.translation.vector;
         let mut h = Matrix6::<f64>::zeros();
         let mut g = Vector6::<f64>::zeros();
-        let (mut sw, mut swe2) = (0.0f64, 0.0f64);
+        let (mut sw, mut swe2, mut sr2) = (0.0f64, 0.0f64, 0.0f64);
         for (i, pt, nq, e) in &pairs {
             let e = f64::from(*e);
             let w = cauchy_weight(e / scale, cfg.cauchy_k);
             let bw = &mut best_w[*i as usize];
             *bw = bw.max(w as f32);
-            let pt = pt.cast::<f64>();
+            let pr = pt.cast::<f64>() - c;
             let nq = nq.cast::<f64>();
-            let c = pt.cross(&nq);
-            let j = Vector6::new(c.x, c.y, c.z, nq.x, nq.y, nq.z);
+            let cr = pr.cross(&nq);
+            let j = Vector6::new(cr.x, cr.y, cr.z, nq.x, nq.y, nq.z);
             h.syger(w, &j, &j, 1.0);
             g.axpy(w * e, &j, 1.0);
             sw += w;
             swe2 += w * e * e;
+            sr2 += w * pr.norm_squared();
         }
         // syger fills the lower triangle only.
         h.fill_upper_triangle_with_lower_triangle();
@@ -150,22 +154,30 @@ pub fn register(
             status = IcpStatus::TooFewInliers;
             break;
         }
-        let eig = SymmetricEigen::new(h);
+        // Rotations are measured as arc length at the typical range so that the eigenvalues of
+        // rotation and translation directions compare (both in m^2 per unit weight).
+        let len_m = (sr2 / sw.max(1e-12)).sqrt().max(1.0);
+        let d = Vector6::new(1.0 / len_m, 1.0 / len_m, 1.0 / len_m, 1.0, 1.0, 1.0);
+        let hs = Matrix6::from_fn(|r, k| h[(r, k)] * d[r] * d[k]);
+        let gs = g.component_mul(&d);
+        let eig = SymmetricEigen::new(hs);
         let lmax = eig.eigenvalues.max();
         let lmin = eig.eigenvalues.min();
         res.eig_ratio = if lmax > 0.0 { lmin / lmax } else { 0.0 };
         res.degenerate = res.eig_ratio < cfg.degenerate_eig_ratio;
         // Solve H xi = -g in the eigenbasis, dropping weak directions: along them the prior wins
         // instead of noise (solution remapping).
-        let mut xi = Vector6::<f64>::zeros();
-        for c in 0..6 {
-            let l = eig.eigenvalues[c];
+        let mut xs = Vector6::<f64>::zeros();
+        for k in 0..6 {
+            let l = eig.eigenvalues[k];
             if l > cfg.degenerate_eig_ratio * lmax && l > 0.0 {
-                let v = eig.eigenvectors.column(c);
-                xi -= v * (v.dot(&g) / l);
+                let v = eig.eigenvectors.column(k);
+                xs -= v * (v.dot(&gs) / l);
             }
         }
-        pose = se3::exp(&xi) * pose;
+        let xi = xs.component_mul(&d);
+        let about_sensor = Isometry3::translation(c.x, c.y, c.z);
+        pose = about_sensor * se3::exp(&xi) * about_sensor.inverse() * pose;
         let corr = pose * init.inverse();
         if se3::rotation_angle(&corr) > cfg.max_correction_rot_rad
             || (pose.translation.vector - init.translation.vector).norm()

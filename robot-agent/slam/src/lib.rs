@@ -22,4 +22,4 @@ pub mod se3;
 
 pub use config::Config;
 pub use eval::{trajectory_errors, TrajectoryErrors};
-pub use pipeline::{Diagnostics, PriorKind, Slam, SlamError, SlamOutput};
+pub use pipeline::{register_pair, Diagnostics, PriorKind, Slam, SlamError, SlamOutput};

@@ -312,3 +312,23 @@ impl Slam {
         })
     }
 }
+
+/// Registers one scan pair with the reading filters of `cfg` applied to both (each in its own
+/// sensor frame): returns `target<-source`, starting from `init`.
+pub fn register_pair(
+    source: &[Point],
+    target: &[Point],
+    init: &Isometry3<f64>,
+    cfg: &Config,
+) -> IcpResult {
+    let mut rng = StdRng::seed_from_u64(cfg.filters.seed);
+    let id = Isometry3::identity();
+    let prep = |pts: &[Point], rng: &mut StdRng| {
+        let s = filters::sample(pts, &id, &cfg.filters, rng);
+        filters::normals_and_density(s, [0.0; 3], &cfg.filters, rng)
+    };
+    let src = prep(source, &mut rng);
+    let tgt = prep(target, &mut rng);
+    let index = crate::index::KdIndex::build(&tgt.points);
+    icp::register(&src, &tgt, &index, init, &cfg.icp)
+}
