@@ -166,6 +166,8 @@ map.on("click", (ev) => {
   const x = ev.latlng.lng;
   const y = ev.latlng.lat;
   if (state.goalMode) {
+    // One click, one goal: a second stray click must not re-target the robot.
+    setGoalMode(false);
     sendGoal({ x, y });
     return;
   }

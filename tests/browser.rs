@@ -1,0 +1,129 @@
+//! Browser test of the operator UI: `operator-station demo --robots 1` (station plus one simulated
+//! robot over Zenoh on loopback) and Debian's chromium driven by `node web/tests/ui.mjs`
+//! (playwright-core). The page must show tiles and the robot within 10 s of the demo start, send a
+//! goal on a map click and draw the planned path, and stop the robot with the STOP button.
+//! Screenshots and the demo's log land in `artifacts/ui/` (git-ignored, uploaded by CI).
+//!
+//! Skips with a notice only when `/usr/bin/chromium` or `web/node_modules` is missing; CI installs
+//! both, so there a missing piece never hides a failure.
+
+use std::fs::File;
+use std::net::TcpStream;
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use anyhow::{bail, Context};
+use support::{bin, free_port, workspace_root, KillOnDrop};
+
+const CHROMIUM: &str = "/usr/bin/chromium";
+/// Upper bound for the whole node script; its own steps time out well before this.
+const UI_TEST_LIMIT: Duration = Duration::from_secs(150);
+/// How long the station may take to accept connections.
+const STATION_START_LIMIT: Duration = Duration::from_secs(30);
+
+fn unix_ms() -> u128 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_millis())
+        .unwrap_or(0)
+}
+
+fn tail(path: &Path, lines: usize) -> String {
+    let text = std::fs::read_to_string(path).unwrap_or_default();
+    let all: Vec<&str> = text.lines().collect();
+    all[all.len().saturating_sub(lines)..].join("\n")
+}
+
+#[test]
+fn operator_ui_shows_map_and_robot_sends_goal_and_stops() -> anyhow::Result<()> {
+    let root = workspace_root();
+    if !Path::new(CHROMIUM).exists() {
+        println!("skipping browser test: {CHROMIUM} is missing (apt-get install chromium)");
+        return Ok(());
+    }
+    let modules = root.join("web/node_modules");
+    if !modules.join("playwright-core").is_dir() || !modules.join("leaflet").is_dir() {
+        println!("skipping browser test: web/node_modules is missing (cd web && npm ci)");
+        return Ok(());
+    }
+    let artifacts = root.join("artifacts/ui");
+    std::fs::create_dir_all(&artifacts)?;
+    let demo_log = artifacts.join("demo.log");
+
+    let port = free_port();
+    let since_ms = unix_ms();
+    let mut demo = KillOnDrop::spawn(
+        Command::new(bin("operator-station"))
+            .args(["demo", "--robots", "1", "--port", &port.to_string()])
+            .current_dir(&root)
+            .stdin(Stdio::null())
+            .stdout(File::create(&demo_log)?)
+            .stderr(File::create(artifacts.join("demo.stderr.log"))?),
+    )
+    .context("start operator-station demo")?;
+
+    // The station must accept connections; a demo that dies early fails here with its log.
+    let start = Instant::now();
+    while TcpStream::connect(("127.0.0.1", port)).is_err() {
+        if let Some(status) = demo.0.try_wait()? {
+            bail!(
+                "operator-station demo exited with {status} before serving:\n{}\n{}",
+                tail(&demo_log, 20),
+                tail(&artifacts.join("demo.stderr.log"), 20)
+            );
+        }
+        if start.elapsed() > STATION_START_LIMIT {
+            bail!(
+                "operator-station demo did not accept connections on port {port} within {STATION_START_LIMIT:?}:\n{}",
+                tail(&artifacts.join("demo.stderr.log"), 20)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+
+    let url = format!("http://127.0.0.1:{port}/");
+    let ui_out = artifacts.join("ui.stdout.log");
+    let ui_err = artifacts.join("ui.stderr.log");
+    let mut ui = KillOnDrop::spawn(
+        Command::new("node")
+            .arg(root.join("web/tests/ui.mjs"))
+            .arg(&url)
+            .args(["--since-ms", &since_ms.to_string()])
+            .current_dir(&root)
+            .env("TERRANAV_ARTIFACTS", &artifacts)
+            .stdin(Stdio::null())
+            .stdout(File::create(&ui_out)?)
+            .stderr(File::create(&ui_err)?),
+    )
+    .context("run node web/tests/ui.mjs (is node installed?)")?;
+    let started = Instant::now();
+    let status = loop {
+        if let Some(s) = ui.0.try_wait()? {
+            break Some(s);
+        }
+        if started.elapsed() > UI_TEST_LIMIT {
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    // Printed through the harness so `cargo test` shows it on failure (and with --nocapture).
+    println!("{}", std::fs::read_to_string(&ui_out).unwrap_or_default());
+    let stderr = std::fs::read_to_string(&ui_err).unwrap_or_default();
+    println!("{stderr}");
+    match status {
+        None => bail!("web/tests/ui.mjs did not finish within {UI_TEST_LIMIT:?}"),
+        Some(s) if !s.success() => bail!(
+            "browser test failed ({s}); screenshots in {}:\n{stderr}\ndemo log tail:\n{}",
+            artifacts.display(),
+            tail(&demo_log, 15)
+        ),
+        Some(_) => {}
+    }
+    // The demo must still be running: the UI test passing against a dying station proves little.
+    assert!(
+        demo.0.try_wait()?.is_none(),
+        "operator-station demo exited during the browser test"
+    );
+    Ok(())
+}
