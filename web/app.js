@@ -256,10 +256,8 @@ function setDatum(datumId) {
   state.datumId = datumId;
   clearTiles();
   state.tileMeta = null;
-  for (const r of state.robots.values()) {
-    r.trail = [];
-    redrawRobot(r);
-  }
+  // Trails stay: they are in their robot's datum, and come back when that datum is drawn again.
+  for (const r of state.robots.values()) redrawRobot(r);
   for (const [id, t] of state.trackLayers) {
     if (t.datum_id !== datumId) {
       t.layer.remove();
