@@ -610,16 +610,33 @@ function summarize(body) {
 
 let pendingGoal = null;
 
-async function sendGoal(target) {
+/**
+ * Sends a goal to the selected robot. `target` is {x, y} in the drawn map (`frame: "map"`, a click),
+ * {x, y} in the robot's own frame (`frame: "robot"`, typed), or {lat, lon}.
+ */
+async function sendGoal(target, frame = "map") {
   const name = state.selected;
   if (!name) {
     logMsg("warn", "select a robot first", true);
     return;
   }
+  const r = robotView(name);
+  const sameFrame = !r.datumId || !state.datumId || r.datumId === state.datumId;
   let body;
-  let xy = null;
-  if ("x" in target) {
+  let xy = null; // where to mark the goal in the drawn map
+  if ("x" in target && (frame === "robot" || sameFrame)) {
     body = { x: target.x, y: target.y };
+    if (sameFrame) xy = [target.x, target.y];
+  } else if ("x" in target) {
+    // The drawn map is another datum than the robot's: map x,y would land somewhere else in the
+    // robot's frame. Through lat/lon the point is the same on the ground; without GNSS, refuse.
+    const d = currentDatum();
+    if (!hasGeodetic(d)) {
+      logMsg("error", `goal refused: the map shows ${state.datumId} but ${name} is in ${r.datumId}; switch the map datum`);
+      return;
+    }
+    const g = enuToGeodetic(d, target.x, target.y, 0);
+    body = { lat: g.latDeg, lon: g.lonDeg };
     xy = [target.x, target.y];
   } else {
     body = { lat: target.lat, lon: target.lon };
@@ -675,7 +692,8 @@ document.getElementById("goal-form").addEventListener("submit", (ev) => {
     return;
   }
   if (kind === "xy") {
-    sendGoal({ x: pair[0], y: pair[1] });
+    // Typed x,y are in the robot's own map frame (what its status and logs show).
+    sendGoal({ x: pair[0], y: pair[1] }, "robot");
   } else {
     const [lat, lon] = pair;
     if (Math.abs(lat) > 90 || Math.abs(lon) > 180) {
