@@ -95,6 +95,8 @@ function robotView(name) {
       pose: null,
       status: null,
       path: [],
+      pathAt: 0, // local time the path last changed
+      statusAt: 0, // local time of the last status
       rates: {},
       ages: {},
       trail: [],
@@ -359,7 +361,9 @@ function redrawRobot(r) {
   }
   r.trailLine.setLatLngs(r.trail.map(([x, y]) => ll(x, y)));
 
-  if (r.path && r.path.length >= 2) {
+  // A path older than a status saying the mission is over is history, not a plan.
+  const over = r.status && !isActiveMission(r.status.mission) && r.statusAt > r.pathAt;
+  if (r.path && r.path.length >= 2 && !over) {
     const pts = r.path.map(([x, y]) => ll(x, y));
     if (!r.pathLine) {
       r.pathLine = L.polyline(pts, { pane: "pathsPane", className: "robot-path", interactive: false }).addTo(map);
@@ -1067,12 +1071,26 @@ function applyRobotRest(j) {
   }
   if (j.pose && (!r.pose || j.pose.t_unix_ms >= r.pose.t_unix_ms)) r.pose = j.pose;
   if (j.status) applyStatus(r, j.status);
-  if (Array.isArray(j.path)) r.path = j.path;
+  if (Array.isArray(j.path)) setPath(r, j.path);
   r.rates = j.rates_hz || {};
   r.ages = j.ages_ms || {};
 }
 
+function samePath(a, b) {
+  if (a.length !== b.length) return false;
+  if (!a.length) return true;
+  const [a0, a1, b0, b1] = [a[0], a[a.length - 1], b[0], b[b.length - 1]];
+  return a0[0] === b0[0] && a0[1] === b0[1] && a1[0] === b1[0] && a1[1] === b1[1];
+}
+
+function setPath(r, points) {
+  if (samePath(r.path, points)) return;
+  r.path = points;
+  r.pathAt = Date.now();
+}
+
 function applyStatus(r, s) {
+  if (!r.status || s.t_unix_ms !== r.status.t_unix_ms) r.statusAt = Date.now();
   r.status = s;
   if (s.last_error) robotError(r.name, s.last_error);
   if (r.name === state.selected) {
@@ -1203,7 +1221,7 @@ function handleWs(m) {
     }
     case "path": {
       const r = robotView(m.robot);
-      r.path = m.points || [];
+      setPath(r, m.points || []);
       redrawRobot(r);
       break;
     }
