@@ -137,6 +137,10 @@ fn to_json(line: usize, s: &Sentence) -> Decoded<'_> {
             d.talker = &h.talker;
             d.heading_deg = h.heading_deg;
         }
+        Sentence::Zda(z) => {
+            d.talker = &z.talker;
+            d.date = z.date.map(|x| x.to_string());
+        }
         Sentence::Avr(a) => {
             d.talker = "PTNL";
             d.yaw_deg = a.yaw_deg;
