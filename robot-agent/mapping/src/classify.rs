@@ -13,6 +13,8 @@ pub struct CellStats {
     pub mean_m: f64,
     /// Height variance, m^2.
     pub var_m2: f64,
+    /// Highest point, metres.
+    pub max_m: f64,
 }
 
 /// The classification of a cell before inflation.
@@ -54,6 +56,9 @@ pub enum Verdict {
     NeighbourStep,
     /// The least-squares plane of the 3x3 neighbourhood is steeper than `alpha`.
     Slope,
+    /// The cell's top is above a neighbour's top by more than `h_max`: a riser (curb face)
+    /// inside the cell, whose points pull the mean halfway down the step.
+    TopStep,
     /// A jump in a height profile through the cell, after removing the slopes on both sides.
     Step,
 }
@@ -137,6 +142,23 @@ impl Rules {
                 }
             }
         }
+        let top = |dx: i32, dy: i32| {
+            let s = nb[(dy + 2) as usize][(dx + 2) as usize];
+            (s.n >= self.min_points).then_some(s.max_m)
+        };
+        for dy in -1..=1 {
+            for dx in -1..=1 {
+                if dx == 0 && dy == 0 {
+                    continue;
+                }
+                if let Some(t) = top(dx, dy) {
+                    let limit = if dx != 0 && dy != 0 { self.h_max_m * std::f64::consts::SQRT_2 } else { self.h_max_m };
+                    if c.max_m - t > limit {
+                        return Verdict::TopStep;
+                    }
+                }
+            }
+        }
         if let Some((gx, gy)) = self.plane_gradient(nb) {
             if gx.hypot(gy) > self.tan_alpha {
                 return Verdict::Slope;
@@ -150,6 +172,9 @@ impl Rules {
                 let (ax, ay) = (ux * s, uy * s);
                 let Some(h1) = seen(ax, ay) else { continue };
                 let jump = h1 - c.mean_m;
+                // A side that is itself a discontinuity (steeper than alpha) says nothing about
+                // the slope here; it is that cell's own step.
+                let side_limit = if ax != 0 && ay != 0 { self.h_max_m * std::f64::consts::SQRT_2 } else { self.h_max_m };
                 let mut sides = Vec::with_capacity(2);
                 if let Some(hb) = seen(-ax, -ay) {
                     sides.push(c.mean_m - hb);
@@ -157,6 +182,7 @@ impl Rules {
                 if let Some(h2) = seen(2 * ax, 2 * ay) {
                     sides.push(h2 - h1);
                 }
+                sides.retain(|d: &f64| d.abs() <= side_limit);
                 if sides.is_empty() {
                     continue;
                 }
@@ -221,7 +247,7 @@ mod tests {
         for (y, row) in nb.iter_mut().enumerate() {
             for (x, c) in row.iter_mut().enumerate() {
                 let (px, py) = ((x as f64 - 2.0) * L, (y as f64 - 2.0) * L);
-                *c = CellStats { n, mean_m: f(px, py), var_m2: var };
+                *c = CellStats { n, mean_m: f(px, py), var_m2: var, max_m: f(px, py) + 2.0 * var.sqrt() };
             }
         }
         nb

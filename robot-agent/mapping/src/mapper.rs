@@ -149,11 +149,19 @@ type FastMap<K, V> = HashMap<K, V, BuildHasherDefault<FxHasher>>;
 type FastSet<K> = HashSet<K, BuildHasherDefault<FxHasher>>;
 
 /// Running height moments.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 struct Moments {
     n: u32,
     sz: f64,
     szz: f64,
+    /// Highest point; a riser's points pull a cell's mean halfway down the step, its top does not.
+    zmax: f32,
+}
+
+impl Default for Moments {
+    fn default() -> Self {
+        Self { n: 0, sz: 0.0, szz: 0.0, zmax: f32::NEG_INFINITY }
+    }
 }
 
 impl Moments {
@@ -161,9 +169,10 @@ impl Moments {
         self.n += 1;
         self.sz += z;
         self.szz += z * z;
+        self.zmax = self.zmax.max(z as f32);
     }
     fn merged(&self, o: &Moments) -> Moments {
-        Moments { n: self.n + o.n, sz: self.sz + o.sz, szz: self.szz + o.szz }
+        Moments { n: self.n + o.n, sz: self.sz + o.sz, szz: self.szz + o.szz, zmax: self.zmax.max(o.zmax) }
     }
     fn stats(&self) -> CellStats {
         if self.n == 0 {
@@ -171,7 +180,7 @@ impl Moments {
         }
         let n = f64::from(self.n);
         let mean = self.sz / n;
-        CellStats { n: self.n, mean_m: mean, var_m2: (self.szz / n - mean * mean).max(0.0) }
+        CellStats { n: self.n, mean_m: mean, var_m2: (self.szz / n - mean * mean).max(0.0), max_m: f64::from(self.zmax) }
     }
 }
 
@@ -845,7 +854,7 @@ impl Mapper {
                     if st.n >= min {
                         *s = st;
                     } else if d.driven {
-                        *s = CellStats { n: min, mean_m: f64::from(d.driven_z), var_m2: 0.0 };
+                        *s = CellStats { n: min, mean_m: f64::from(d.driven_z), var_m2: 0.0, max_m: f64::from(d.driven_z) };
                     } else {
                         s.n = st.n;
                     }
@@ -951,5 +960,12 @@ impl Mapper {
             hi = (hi.0.max(x), hi.1.max(y));
         }
         Some((lo, (hi.0 + n - 1, hi.1 + n - 1)))
+    }
+}
+
+impl Mapper {
+    /// Evidence statistics of one cell (diagnostics).
+    pub fn debug_stats(&self, cx: i64, cy: i64) -> CellStats {
+        self.data(cx, cy).map(|d| d.evidence().stats()).unwrap_or_default()
     }
 }
