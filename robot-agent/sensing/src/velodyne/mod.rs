@@ -143,6 +143,9 @@ pub struct DecodeStats {
     pub unknown_product: u64,
     /// Packets with an unknown return-mode byte.
     pub unknown_return_mode: u64,
+    /// Gaps in the sensor clock between packets (more than 0.1 s forward, or backward): the scan
+    /// under construction was closed as incomplete. Not malformed packets.
+    pub time_gaps: u64,
 }
 
 impl DecodeStats {
@@ -267,9 +270,24 @@ pub struct ScanAssembler {
     /// Cuts in the current packet: (returns before it, firings before it, unwrapped cut azimuth).
     cuts: Vec<(usize, usize, f64)>,
     firing_unwrapped: Vec<f64>,
+    last_sensor_us: Option<u32>,
 }
 
 const HOUR_US: f64 = 3_600_000_000.0;
+/// Packets come every 0.66 ms (dual) or 1.33 ms (single): a 0.1 s hole is lost data.
+const MAX_GAP_US: f64 = 100_000.0;
+/// Reordered datagrams may step back a little; more is a restart.
+const MAX_BACKSTEP_US: f64 = 10_000.0;
+
+/// A difference of microseconds-past-the-hour stamps, into (-30 min, 30 min].
+fn wrap_hour_us(mut dt_us: f64) -> f64 {
+    if dt_us <= -HOUR_US / 2.0 {
+        dt_us += HOUR_US;
+    } else if dt_us > HOUR_US / 2.0 {
+        dt_us -= HOUR_US;
+    }
+    dt_us
+}
 
 impl ScanAssembler {
     /// An assembler with the given settings.
@@ -287,6 +305,7 @@ impl ScanAssembler {
             packet_buf: Vec::with_capacity(2 * BLOCKS_PER_PACKET * 2 * LASERS),
             cuts: Vec::new(),
             firing_unwrapped: Vec::new(),
+            last_sensor_us: None,
         }
     }
 
@@ -299,6 +318,30 @@ impl ScanAssembler {
     /// it completed (usually none, at most one for real data). Malformed packets are counted in
     /// [`stats`](Self::stats) and skipped.
     pub fn push_packet(&mut self, data: &[u8], host_stamp_s: f64) -> Vec<LidarScan> {
+        let mut done = Vec::new();
+        // Lost packets (a cable pulled, a bag with holes) or a restarted sensor: the azimuth alone
+        // cannot tell how many rotations were missed, so close the scan and start afresh.
+        if let Ok(info) = inspect_packet(data, self.config.require_vlp16_product) {
+            if let Some(prev) = self.last_sensor_us {
+                let dt_us = wrap_hour_us(info.timestamp_us as f64 - prev as f64);
+                if !(-MAX_BACKSTEP_US..=MAX_GAP_US).contains(&dt_us) {
+                    self.stats.time_gaps += 1;
+                    if self.current.packets > 0 {
+                        let end = self.current.last_unwrapped_deg;
+                        done.push(self.close(end, false));
+                    }
+                    let cut_deg = self
+                        .config
+                        .cut_angle_deg
+                        .map(|d| (d as f64).rem_euclid(360.0));
+                    self.tracker = CutTracker {
+                        cut_deg,
+                        ..CutTracker::default()
+                    };
+                }
+            }
+            self.last_sensor_us = Some(info.timestamp_us);
+        }
         let mut buf = std::mem::take(&mut self.packet_buf);
         buf.clear();
         self.cuts.clear();
@@ -323,13 +366,12 @@ impl ScanAssembler {
             Err(e) => {
                 self.stats.count(&e);
                 self.packet_buf = buf;
-                return Vec::new();
+                return done;
             }
         };
         self.stats.packets_ok += 1;
         let first_u = self.firing_unwrapped.first().copied().unwrap_or(0.0);
         let last_u = self.firing_unwrapped.last().copied().unwrap_or(0.0);
-        let mut done = Vec::new();
         let mut start = 0;
         let mut seg_first_u = first_u;
         let cuts = std::mem::take(&mut self.cuts);
@@ -393,12 +435,7 @@ impl ScanAssembler {
                 ts_us as f64 + t_in_packet_us
             });
             // Sensor time is microseconds past the hour: unwrap across the hour.
-            let mut dt_us = ts_us as f64 + t_in_packet_us - first_us;
-            if dt_us < -HOUR_US / 2.0 {
-                dt_us += HOUR_US;
-            } else if dt_us > HOUR_US / 2.0 {
-                dt_us -= HOUR_US;
-            }
+            let dt_us = wrap_hour_us(ts_us as f64 + t_in_packet_us - first_us);
             let mut r = *r;
             r.point.t_s = (dt_us * 1e-6) as f32;
             b.returns.push(r);
@@ -555,5 +592,28 @@ mod tests {
         assert_eq!(st.malformed(), 3);
         assert_eq!(s.returns.len(), 7 * 384);
         assert_eq!(s.packets, 7);
+    }
+
+    #[test]
+    fn a_gap_in_the_sensor_clock_closes_the_scan() {
+        let mut pk = stream(0, 200);
+        // Packets 60.. arrive 2 s later, from another azimuth (the sensor kept turning).
+        for (i, p) in pk.iter_mut().enumerate().skip(60) {
+            let t = 3_000_000 + i as u32 * 1327;
+            p[1200..1204].copy_from_slice(&t.to_le_bytes());
+            for b in 0..12 {
+                let az = ((20_000 + 240 * (i as u32 - 60) + 20 * b as u32) % 36000) as u16;
+                p[b * 100 + 2..b * 100 + 4].copy_from_slice(&az.to_le_bytes());
+            }
+        }
+        let (scans, stats) =
+            assemble_all(pk.iter().map(|p| (&p[..], 0.0)), VelodyneConfig::default());
+        assert_eq!(stats.time_gaps, 1);
+        assert_eq!(stats.malformed(), 0);
+        assert!(!scans[0].complete);
+        assert_eq!(scans[0].packets, 60);
+        // After the gap: from 200 deg at 2.4 deg a packet, the 360 deg cut comes in the 67th.
+        assert_eq!(scans[1].packets, 67);
+        assert!(scans[1].returns.iter().all(|r| r.point.t_s < 0.1));
     }
 }
