@@ -5,7 +5,7 @@
 //!
 //! - Frame: the sensor frame with **x forward, y left, z up** (right-handed, as the rest of the
 //!   system and the ROS Velodyne drivers use). Velodyne's azimuth is measured *clockwise* seen from
-//!   above with 0 at the front (the side opposite the cable), so a return at distance `d`, azimuth
+//!   above with 0 at the sensor's front (our +x), so a return at distance `d`, azimuth
 //!   `a`, elevation `e` is `x = d cos(e) cos(a)`, `y = -d cos(e) sin(a)`, `z = d sin(e)`. This is
 //!   exactly the convention of the reference decoding `lidar/vlp16/decoded_*.pcd` (Autoware nebula):
 //!   its points equal ours, no axis swap or sign flip (tests check it point by point).
@@ -80,7 +80,8 @@ pub enum AzimuthInterpolation {
 pub struct VelodyneConfig {
     /// Returns at or below this distance are dropped (the robot's own body), metres.
     pub min_range_m: f32,
-    /// Returns at or beyond this distance are dropped, metres (VLP-16 rated range: 100 m).
+    /// Returns at or beyond this distance are dropped, metres (the VLP-16 is rated to 100 m but
+    /// reports up to ~130 m; the default keeps everything it reports).
     pub max_range_m: f32,
     /// Returns with azimuth below this are dropped, degrees (clockwise from the front).
     pub min_azimuth_deg: f32,
@@ -114,7 +115,11 @@ impl Default for VelodyneConfig {
 impl VelodyneConfig {
     /// The settings the reference decoding `lidar/vlp16/decoded_*.pcd` was made with (nebula's
     /// test configuration: min range 0.3 m, max 300 m, azimuths 0..359 deg, scans cut at 0 deg,
-    /// nebula's azimuth arithmetic).
+    /// nebula's azimuth arithmetic). With them, scan 3 of `packets_*.db3` (the rotation from the
+    /// last packet of the 3rd message to the wrap in the last packet of the 4th, whose bag time
+    /// names the file) equals the reference: 14 831 points, within 3 um. The reference's
+    /// `time_stamp` field is not reproduced: that nebula build timed dual-return blocks as if
+    /// single-return.
     pub fn nebula_reference() -> Self {
         Self {
             min_range_m: 0.3,
