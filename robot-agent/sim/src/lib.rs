@@ -5,16 +5,30 @@
 //! - [`robot`]: the robot profile (`config/robot.toml`, Husky A200 defaults).
 //! - [`world`]: ground height field, solids, walkers, ray casting.
 //! - [`labels`]: ground-truth traversability labels on a [`common::grid::Lattice`].
+//! - [`plant`]: differential drive with limits, terrain following, collisions.
+//! - [`sensors`]: VLP-16, SR4000 depth camera, wheel odometry, RTK GNSS (GGA + `$PTNL,AVR`).
+//! - [`simulation`]: [`Simulation`], the plant plus sensors stepped by the caller.
+//! - [`record`]: writes a run as a sequence folder; [`render`]: top-down PNG with labels.
+//! - [`drive`]: [`drive::PathDriver`], a pure-pursuit scripted driver on the truth pose.
 //!
 //! Pure library: deterministic for a seed, no clocks, no threads.
 #![deny(missing_docs)]
 
+pub mod drive;
 pub mod labels;
+pub mod plant;
+pub mod record;
+pub mod render;
 pub mod robot;
 pub mod scenario;
+pub mod sensors;
+pub mod simulation;
 pub mod world;
 
 pub use labels::{LabelParams, TruthCell, TruthGrid};
+pub use plant::{Collision, CollisionKind};
 pub use robot::RobotProfile;
+pub use sensors::{DepthConfig, GnssConfig, GnssFix, LidarConfig, OdomConfig};
+pub use simulation::{SimConfig, Simulation, StepOutput};
 pub use scenario::{Scenario, ScenarioError};
-pub use world::{Hit, HitKind, Obstacle, World};
+pub use world::{Hit, HitKind, Obstacle, WalkerState, World};

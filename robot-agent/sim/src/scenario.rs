@@ -33,9 +33,11 @@
 //! ```
 //!
 //! Ground features are baked into the height field in this order: steps, platforms, stairs,
-//! ramps, holes (each kind in file order). Steps and holes are relative to the local terrain;
-//! stairs and ramps start at the terrain height of their bottom edge centre (`x_m`, `y_m`) and
-//! rise along `yaw_deg`, never lowering what is already there.
+//! ramps, holes (each kind in file order). All heights are offsets from the local procedural
+//! terrain (so a curb keeps its height and a ramp meets a platform of the same height exactly on
+//! undulating ground): steps and platforms set `terrain + height_m`; stairs and ramps rise along
+//! `yaw_deg` from their bottom edge centre (`x_m`, `y_m`) and never lower what is already
+//! there; holes lower what is there by `depth_m`.
 
 use serde::Deserialize;
 
@@ -201,7 +203,7 @@ fn default_step_width() -> f64 {
 pub struct PlatformSpec {
     /// Footprint.
     pub rect: Rect,
-    /// Top height above the terrain at the centre, metres.
+    /// Top height above the local terrain, metres.
     pub height_m: f64,
 }
 

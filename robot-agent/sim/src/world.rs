@@ -795,11 +795,10 @@ impl World {
         }
         for p in &sc.platform {
             let o = Obb::from_rect(&p.rect);
-            let top = w.base.height(o.cx, o.cy) + p.height_m;
             let (x0, y0, x1, y1) = o.aabb();
-            w.for_vertices(x0, y0, x1, y1, |_, x, y, h, fl| {
+            w.for_vertices(x0, y0, x1, y1, |b, x, y, h, fl| {
                 if o.contains(x, y) {
-                    *h = top as f32;
+                    *h = (b + p.height_m) as f32;
                     *fl |= FLAG_PAVED;
                 }
             });
@@ -807,7 +806,6 @@ impl World {
         for s in &sc.stairs {
             let run = s.steps as f64 * s.step_depth_m;
             let len = run + s.landing_m;
-            let bottom = w.base.height(s.x_m, s.y_m);
             let yaw = s.yaw_deg.to_radians();
             let o = Obb {
                 cx: s.x_m + 0.5 * len * yaw.cos(),
@@ -818,11 +816,11 @@ impl World {
             };
             let (x0, y0, x1, y1) = o.aabb();
             let (sn, cs) = yaw.sin_cos();
-            w.for_vertices(x0, y0, x1, y1, |_, x, y, h, fl| {
+            w.for_vertices(x0, y0, x1, y1, |b, x, y, h, fl| {
                 if o.contains(x, y) {
                     let u = (x - s.x_m) * cs + (y - s.y_m) * sn;
                     let k = ((u / s.step_depth_m).floor() as i64 + 1).clamp(1, s.steps as i64);
-                    let v = bottom + k as f64 * s.step_height_m;
+                    let v = b + k as f64 * s.step_height_m;
                     *h = h.max(v as f32);
                     *fl |= FLAG_PAVED;
                 }
@@ -830,7 +828,6 @@ impl World {
         }
         for r in &sc.ramp {
             let len = r.length_m + r.landing_m;
-            let bottom = w.base.height(r.x_m, r.y_m);
             let yaw = r.yaw_deg.to_radians();
             let grade = r.slope_deg.to_radians().tan();
             let o = Obb {
@@ -842,10 +839,10 @@ impl World {
             };
             let (x0, y0, x1, y1) = o.aabb();
             let (sn, cs) = yaw.sin_cos();
-            w.for_vertices(x0, y0, x1, y1, |_, x, y, h, fl| {
+            w.for_vertices(x0, y0, x1, y1, |b, x, y, h, fl| {
                 if o.contains(x, y) {
                     let u = ((x - r.x_m) * cs + (y - r.y_m) * sn).clamp(0.0, r.length_m);
-                    *h = h.max((bottom + u * grade) as f32);
+                    *h = h.max((b + u * grade) as f32);
                     *fl |= FLAG_PAVED;
                 }
             });
@@ -937,8 +934,19 @@ impl World {
 
     fn add_wall(&mut self, s: &crate::scenario::WallSpec) {
         let f = self.new_feature();
+        // Pieces of at most 4 m keep bounding circles tight for the sensors' candidate lists.
+        let mut pieces = Vec::new();
         for seg in s.points.windows(2) {
             let (a, b) = (seg[0], seg[1]);
+            let n = ((a[0] - b[0]).hypot(a[1] - b[1]) / 4.0).ceil().max(1.0) as usize;
+            for k in 0..n {
+                let f0 = k as f64 / n as f64;
+                let f1 = (k + 1) as f64 / n as f64;
+                let lerp = |f: f64| [a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])];
+                pieces.push((lerp(f0), lerp(f1)));
+            }
+        }
+        for (a, b) in pieces {
             let len = (b[0] - a[0]).hypot(b[1] - a[1]);
             if len < 1e-6 {
                 continue;
