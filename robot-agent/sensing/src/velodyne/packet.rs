@@ -375,15 +375,15 @@ pub(crate) fn decode_firings(
                 continue;
             }
             let az_rad = (az_cdeg / 100.0).to_radians();
-            let (sin_az, cos_az) = az_rad.sin_cos();
+            let (sin_az, cos_az) = (az_rad as f32).sin_cos();
             let d = distance_m as f32;
             let xy = d * lasers.cos_el[laser];
             let t_us = seq as f64 * SEQUENCE_INTERVAL_US + laser as f64 * FIRING_INTERVAL_US;
             out.push(VelodyneReturn {
                 point: Point {
-                    x: xy * cos_az as f32,
+                    x: xy * cos_az,
                     // Velodyne azimuth turns clockwise seen from above; y left needs the minus sign.
-                    y: -xy * sin_az as f32,
+                    y: -xy * sin_az,
                     z: d * lasers.sin_el[laser],
                     intensity: reflectivity as f32,
                     ring: laser as u16,
