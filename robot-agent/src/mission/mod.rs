@@ -1,1 +1,4 @@
 //! Missions: go to a goal (map or GNSS), teach (record a route) and repeat (follow it back).
+
+pub mod gnss;
+pub mod teach;
