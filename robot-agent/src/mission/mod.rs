@@ -1,4 +1,5 @@
 //! Missions: go to a goal (map or GNSS), teach (record a route) and repeat (follow it back).
 
 pub mod gnss;
+pub mod navigate;
 pub mod teach;
