@@ -2,4 +2,5 @@
 
 pub mod gnss;
 pub mod navigate;
+pub mod repeat;
 pub mod teach;
