@@ -127,3 +127,32 @@ fn operator_ui_shows_map_and_robot_sends_goal_and_stops() -> anyhow::Result<()> 
     );
     Ok(())
 }
+
+/// The UI's WGS-84 helpers (`web/geo.js`) against the reference vectors: run through node so that
+/// `cargo test` covers them too. Needs only node, not the browser or `node_modules`.
+#[test]
+fn web_geo_helpers_match_reference_vectors() -> anyhow::Result<()> {
+    let root = workspace_root();
+    let out = match Command::new("node")
+        .args(["--test", "web/tests/geo.test.mjs"])
+        .current_dir(&root)
+        .stdin(Stdio::null())
+        .output()
+    {
+        Ok(out) => out,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            println!("skipping web_geo_helpers_match_reference_vectors: node is not installed");
+            return Ok(());
+        }
+        Err(e) => return Err(e).context("run node --test"),
+    };
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    println!("{stdout}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "node --test web/tests/geo.test.mjs failed"
+    );
+    // node:test reports a skip (no ../shared/data) as a pass; say which one happened.
+    assert!(stdout.contains("# pass"), "unexpected node --test output");
+    Ok(())
+}

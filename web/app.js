@@ -95,6 +95,8 @@ function robotView(name) {
       pose: null,
       status: null,
       path: [],
+      pathAt: 0, // local time the path last changed
+      statusAt: 0, // local time of the last status
       rates: {},
       ages: {},
       trail: [],
@@ -256,10 +258,8 @@ function setDatum(datumId) {
   state.datumId = datumId;
   clearTiles();
   state.tileMeta = null;
-  for (const r of state.robots.values()) {
-    r.trail = [];
-    redrawRobot(r);
-  }
+  // Trails stay: they are in their robot's datum, and come back when that datum is drawn again.
+  for (const r of state.robots.values()) redrawRobot(r);
   for (const [id, t] of state.trackLayers) {
     if (t.datum_id !== datumId) {
       t.layer.remove();
@@ -361,7 +361,9 @@ function redrawRobot(r) {
   }
   r.trailLine.setLatLngs(r.trail.map(([x, y]) => ll(x, y)));
 
-  if (r.path && r.path.length >= 2) {
+  // A path older than a status saying the mission is over is history, not a plan.
+  const over = r.status && !isActiveMission(r.status.mission) && r.statusAt > r.pathAt;
+  if (r.path && r.path.length >= 2 && !over) {
     const pts = r.path.map(([x, y]) => ll(x, y));
     if (!r.pathLine) {
       r.pathLine = L.polyline(pts, { pane: "pathsPane", className: "robot-path", interactive: false }).addTo(map);
@@ -612,16 +614,33 @@ function summarize(body) {
 
 let pendingGoal = null;
 
-async function sendGoal(target) {
+/**
+ * Sends a goal to the selected robot. `target` is {x, y} in the drawn map (`frame: "map"`, a click),
+ * {x, y} in the robot's own frame (`frame: "robot"`, typed), or {lat, lon}.
+ */
+async function sendGoal(target, frame = "map") {
   const name = state.selected;
   if (!name) {
     logMsg("warn", "select a robot first", true);
     return;
   }
+  const r = robotView(name);
+  const sameFrame = !r.datumId || !state.datumId || r.datumId === state.datumId;
   let body;
-  let xy = null;
-  if ("x" in target) {
+  let xy = null; // where to mark the goal in the drawn map
+  if ("x" in target && (frame === "robot" || sameFrame)) {
     body = { x: target.x, y: target.y };
+    if (sameFrame) xy = [target.x, target.y];
+  } else if ("x" in target) {
+    // The drawn map is another datum than the robot's: map x,y would land somewhere else in the
+    // robot's frame. Through lat/lon the point is the same on the ground; without GNSS, refuse.
+    const d = currentDatum();
+    if (!hasGeodetic(d)) {
+      logMsg("error", `goal refused: the map shows ${state.datumId} but ${name} is in ${r.datumId}; switch the map datum`);
+      return;
+    }
+    const g = enuToGeodetic(d, target.x, target.y, 0);
+    body = { lat: g.latDeg, lon: g.lonDeg };
     xy = [target.x, target.y];
   } else {
     body = { lat: target.lat, lon: target.lon };
@@ -677,7 +696,8 @@ document.getElementById("goal-form").addEventListener("submit", (ev) => {
     return;
   }
   if (kind === "xy") {
-    sendGoal({ x: pair[0], y: pair[1] });
+    // Typed x,y are in the robot's own map frame (what its status and logs show).
+    sendGoal({ x: pair[0], y: pair[1] }, "robot");
   } else {
     const [lat, lon] = pair;
     if (Math.abs(lat) > 90 || Math.abs(lon) > 180) {
@@ -1051,12 +1071,26 @@ function applyRobotRest(j) {
   }
   if (j.pose && (!r.pose || j.pose.t_unix_ms >= r.pose.t_unix_ms)) r.pose = j.pose;
   if (j.status) applyStatus(r, j.status);
-  if (Array.isArray(j.path)) r.path = j.path;
+  if (Array.isArray(j.path)) setPath(r, j.path);
   r.rates = j.rates_hz || {};
   r.ages = j.ages_ms || {};
 }
 
+function samePath(a, b) {
+  if (a.length !== b.length) return false;
+  if (!a.length) return true;
+  const [a0, a1, b0, b1] = [a[0], a[a.length - 1], b[0], b[b.length - 1]];
+  return a0[0] === b0[0] && a0[1] === b0[1] && a1[0] === b1[0] && a1[1] === b1[1];
+}
+
+function setPath(r, points) {
+  if (samePath(r.path, points)) return;
+  r.path = points;
+  r.pathAt = Date.now();
+}
+
 function applyStatus(r, s) {
+  if (!r.status || s.t_unix_ms !== r.status.t_unix_ms) r.statusAt = Date.now();
   r.status = s;
   if (s.last_error) robotError(r.name, s.last_error);
   if (r.name === state.selected) {
@@ -1187,7 +1221,7 @@ function handleWs(m) {
     }
     case "path": {
       const r = robotView(m.robot);
-      r.path = m.points || [];
+      setPath(r, m.points || []);
       redrawRobot(r);
       break;
     }

@@ -29,6 +29,8 @@ struct Stats {
     tpv_heights: usize,
     tpv_mode: usize,
     tpv_status: usize,
+    tpv_time: usize,
+    tpv_date: usize,
     att: usize,
     max_pos_err_deg: f64,
     max_height_err_m: f64,
@@ -81,6 +83,8 @@ fn check_log(dir: &std::path::Path, name: &str) -> Stats {
     let mut last_pos: Option<(f64, f64)> = None;
     let mut last_heading: Option<f64> = None;
     let mut last_kind = String::new();
+    let mut last_time: Option<String> = None;
+    let mut last_date: Option<String> = None;
     for (i, line) in chk.lines().enumerate() {
         let at = format!("{name}.chk:{}", i + 1);
         let line = line.trim();
@@ -91,6 +95,12 @@ fn check_log(dir: &std::path::Path, name: &str) -> Stats {
             );
             let s = parse_sentence(line).unwrap_or_else(|e| panic!("{at}: {e}"));
             last_kind = s.kind().to_string();
+            last_time = s.time().map(|t| t.to_string());
+            last_date = match &s {
+                Sentence::Rmc(r) => r.date.map(|d| d.to_string()),
+                Sentence::Zda(z) => z.date.map(|d| d.to_string()),
+                _ => None,
+            };
             match s {
                 Sentence::Gga(g) => {
                     if let (Some(lat), Some(lon)) = (g.lat_deg, g.lon_deg) {
@@ -114,6 +124,17 @@ fn check_log(dir: &std::path::Path, name: &str) -> Stats {
         let v: Value = serde_json::from_str(line).unwrap_or_else(|e| panic!("{at}: {e}"));
         match v["class"].as_str() {
             Some("TPV") => {
+                // gpsd's time is ISO 8601 "2018-09-07T19:39:14.000Z": the time of day must be the
+                // sentence's, and the date the sentence's when it carries one (RMC, ZDA).
+                if let (Some(theirs), Some(mine)) = (v["time"].as_str(), &last_time) {
+                    let (date, time) = theirs.split_once('T').unwrap_or(("", theirs));
+                    assert_eq!(time.trim_end_matches('Z'), mine, "{at}: time");
+                    if let Some(my_date) = &last_date {
+                        assert_eq!(date, my_date, "{at}: date");
+                        stats.tpv_date += 1;
+                    }
+                    stats.tpv_time += 1;
+                }
                 if let (Some(lat), Some(lon)) = (v["lat"].as_f64(), v["lon"].as_f64()) {
                     let (my_lat, my_lon) = last_pos.unwrap_or_else(|| panic!("{at}: no position"));
                     let err = (lat - my_lat).abs().max((lon - my_lon).abs());

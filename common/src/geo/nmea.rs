@@ -3,8 +3,8 @@
 //! A sentence is `$`, an address (`GPGGA`, or `P` + maker for proprietary ones such as `PTNL`),
 //! comma-separated fields, `*`, two hex digits of the XOR of every byte between `$` and `*`, CR LF.
 //! [`parse_sentence`] checks all of that and decodes `GGA`, `RMC`, `HDT`, Trimble `$PTNL,AVR` and
-//! `$PTNL,GGK` (see [`crate::geo::trimble`]); `VTG`, `ZDA`, `GSA`, `GSV`, `GLL`, `GST`, `GNS` and
-//! `TXT` are recognised and returned as [`Sentence::Other`]; anything else is
+//! `$PTNL,GGK` (see [`crate::geo::trimble`]) and `ZDA`; `VTG`, `GSA`, `GSV`, `GLL`, `GST`, `GNS`
+//! and `TXT` are recognised and returned as [`Sentence::Other`]; anything else is
 //! [`NmeaError::Unsupported`]. Bad input always gives a typed [`NmeaError`], never a panic.
 //!
 //! Why not the `nmea` crate: it keeps GGA altitude, geoid separation and HDOP as `f32` (1864.182 m
@@ -265,6 +265,17 @@ pub struct Hdt {
     pub heading_deg: Option<f64>,
 }
 
+/// ZDA: UTC time and date (what gpsd takes the date from when there is no RMC).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Zda {
+    /// Talker id.
+    pub talker: String,
+    /// UTC time.
+    pub time: Option<UtcTime>,
+    /// UTC date.
+    pub date: Option<UtcDate>,
+}
+
 /// One decoded sentence.
 #[derive(Clone, Debug, PartialEq)]
 #[non_exhaustive]
@@ -275,6 +286,8 @@ pub enum Sentence {
     Rmc(Rmc),
     /// `--HDT`.
     Hdt(Hdt),
+    /// `--ZDA`.
+    Zda(Zda),
     /// `$PTNL,AVR`.
     Avr(trimble::Avr),
     /// `$PTNL,GGK`.
@@ -295,6 +308,7 @@ impl Sentence {
             Sentence::Gga(_) => "GGA",
             Sentence::Rmc(_) => "RMC",
             Sentence::Hdt(_) => "HDT",
+            Sentence::Zda(_) => "ZDA",
             Sentence::Avr(_) => "AVR",
             Sentence::Ggk(_) => "GGK",
             Sentence::Other { kind, .. } => kind,
@@ -306,6 +320,7 @@ impl Sentence {
         match self {
             Sentence::Gga(s) => s.time,
             Sentence::Rmc(s) => s.time,
+            Sentence::Zda(s) => s.time,
             Sentence::Avr(s) => s.time,
             Sentence::Ggk(s) => s.time,
             Sentence::Hdt(_) | Sentence::Other { .. } => None,
@@ -314,7 +329,7 @@ impl Sentence {
 }
 
 /// Types that are valid NMEA but carry nothing terranav uses.
-const IGNORED: [&str; 8] = ["VTG", "ZDA", "GSA", "GSV", "GLL", "GST", "GNS", "TXT"];
+const IGNORED: [&str; 7] = ["VTG", "GSA", "GSV", "GLL", "GST", "GNS", "TXT"];
 
 /// XOR of all bytes (the NMEA checksum of the text between `$` and `*`).
 pub fn checksum(body: &[u8]) -> u8 {
@@ -391,6 +406,7 @@ pub fn parse_sentence(line: &str) -> Result<Sentence, NmeaError> {
         "GGA" => parse_gga(talker, f).map(Sentence::Gga),
         "RMC" => parse_rmc(talker, f).map(Sentence::Rmc),
         "HDT" => parse_hdt(talker, f).map(Sentence::Hdt),
+        "ZDA" => parse_zda(talker, f).map(Sentence::Zda),
         k if IGNORED.contains(&k) => Ok(Sentence::Other {
             talker: talker.to_string(),
             kind: k.to_string(),
@@ -873,9 +889,59 @@ pub fn format_hdt(talker: &str, heading_deg: Option<f64>) -> String {
     frame(&format!("{talker}HDT,{},T", opt_fmt(heading, 3)))
 }
 
+// ---------------------------------------------------------------------------------------------
+// ZDA
+
+fn parse_zda(talker: &str, f: &[&str]) -> Result<Zda, NmeaError> {
+    const S: &str = "ZDA";
+    field_count(S, f, 6, 6)?;
+    let day = opt_uint(S, "day", f[1], 31)?;
+    let month = opt_uint(S, "month", f[2], 12)?;
+    let year = opt_uint(S, "year", f[3], 9999)?;
+    // Local zone fields are checked but not kept: terranav works in UTC.
+    opt_f64_in(S, "zone hours", f[4], -13.0, 13.0)?;
+    opt_uint(S, "zone minutes", f[5], 59)?;
+    let date = match (day, month, year) {
+        (Some(d @ 1..), Some(m @ 1..), Some(y)) => Some(UtcDate {
+            year: y as u16,
+            month: m as u8,
+            day: d as u8,
+        }),
+        (None, None, None) => None,
+        _ => {
+            return Err(NmeaError::OutOfRange {
+                sentence: S,
+                field: "date",
+                value: clip(&format!("{},{},{}", f[1], f[2], f[3])),
+            })
+        }
+    };
+    Ok(Zda {
+        talker: talker.to_string(),
+        time: opt_time(S, f[0])?,
+        date,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn zda_gives_time_and_date() {
+        let Ok(Sentence::Zda(z)) = parse_sentence("$GPZDA,193913.00,07,09,2018,00,00*63") else {
+            panic!("not a ZDA");
+        };
+        assert_eq!(
+            z.time.map(|t| t.to_string()).as_deref(),
+            Some("19:39:13.000")
+        );
+        assert_eq!(z.date.map(|d| d.to_string()).as_deref(), Some("2018-09-07"));
+        assert!(matches!(
+            parse_sentence(&frame("GPZDA,193913.00,00,09,2018,00,00")),
+            Err(NmeaError::OutOfRange { .. })
+        ));
+    }
 
     const GGA_RTK: &str =
         "$GNGGA,132819.60,4134.49795459,N,09345.03431408,W,2,10,0.9,278.161,M,-31.442,M,6.6,0133*6A";

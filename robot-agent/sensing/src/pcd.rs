@@ -2,7 +2,7 @@
 //! ring/channel and a per-point time), write binary `x y z intensity ring t`.
 
 use crate::cloud::Point;
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
 
 /// Why a PCD file could not be read.
@@ -132,7 +132,12 @@ pub fn parse_pcd(mut r: impl BufRead) -> Result<PcdCloud, PcdError> {
         match key.as_str() {
             "FIELDS" => names = rest.iter().map(|s| s.to_string()).collect(),
             "SIZE" => sizes = rest.iter().map(|s| num(s)).collect::<Result<_, _>>()?,
-            "TYPE" => kinds = rest.iter().map(|s| s.bytes().next().unwrap_or(b'?')).collect(),
+            "TYPE" => {
+                kinds = rest
+                    .iter()
+                    .map(|s| s.bytes().next().unwrap_or(b'?'))
+                    .collect()
+            }
             "COUNT" => counts = rest.iter().map(|s| num(s)).collect::<Result<_, _>>()?,
             "WIDTH" => width = rest.first().map(|s| num(s)).transpose()?,
             "HEIGHT" => height = rest.first().map(|s| num(s)).transpose()?,
@@ -147,8 +152,14 @@ pub fn parse_pcd(mut r: impl BufRead) -> Result<PcdCloud, PcdError> {
     if counts.is_empty() {
         counts = vec![1; names.len()];
     }
-    if names.is_empty() || sizes.len() != names.len() || kinds.len() != names.len() || counts.len() != names.len() {
-        return Err(PcdError::Header("FIELDS, SIZE, TYPE and COUNT disagree".into()));
+    if names.is_empty()
+        || sizes.len() != names.len()
+        || kinds.len() != names.len()
+        || counts.len() != names.len()
+    {
+        return Err(PcdError::Header(
+            "FIELDS, SIZE, TYPE and COUNT disagree".into(),
+        ));
     }
     let n = points
         .or_else(|| Some(width? * height.unwrap_or(1)))
@@ -162,8 +173,14 @@ pub fn parse_pcd(mut r: impl BufRead) -> Result<PcdCloud, PcdError> {
         })
         .collect();
     for f in &fields {
-        if !matches!((f.kind, f.size), (b'F', 4 | 8) | (b'U' | b'I', 1 | 2 | 4 | 8)) {
-            return Err(PcdError::Header(format!("field {} has TYPE/SIZE {}{}", f.name, f.kind as char, f.size)));
+        if !matches!(
+            (f.kind, f.size),
+            (b'F', 4 | 8) | (b'U' | b'I', 1 | 2 | 4 | 8)
+        ) {
+            return Err(PcdError::Header(format!(
+                "field {} has TYPE/SIZE {}{}",
+                f.name, f.kind as char, f.size
+            )));
         }
     }
     let find = |cands: &[&str]| fields.iter().position(|f| cands.contains(&f.name.as_str()));
@@ -185,7 +202,10 @@ pub fn parse_pcd(mut r: impl BufRead) -> Result<PcdCloud, PcdError> {
             let mut buf = Vec::new();
             r.read_to_end(&mut buf).map_err(io)?;
             if buf.len() < stride * n {
-                return Err(PcdError::Data(format!("{} bytes for {n} points of {stride} bytes", buf.len())));
+                return Err(PcdError::Data(format!(
+                    "{} bytes for {n} points of {stride} bytes",
+                    buf.len()
+                )));
             }
             for rec in buf.chunks_exact(stride).take(n) {
                 let mut off = 0;
@@ -284,8 +304,22 @@ mod tests {
     #[test]
     fn binary_round_trip() {
         let pts = vec![
-            Point { x: 1.0, y: -2.0, z: 0.5, intensity: 7.0, ring: 3, t_s: 0.05 },
-            Point { x: f32::NAN, y: 0.0, z: 0.0, intensity: 0.0, ring: 15, t_s: 0.099 },
+            Point {
+                x: 1.0,
+                y: -2.0,
+                z: 0.5,
+                intensity: 7.0,
+                ring: 3,
+                t_s: 0.05,
+            },
+            Point {
+                x: f32::NAN,
+                y: 0.0,
+                z: 0.0,
+                intensity: 0.0,
+                ring: 15,
+                t_s: 0.099,
+            },
         ];
         let mut buf = Vec::new();
         write_pcd_to(&mut buf, &pts).unwrap();
@@ -306,12 +340,25 @@ mod tests {
 
     #[test]
     fn bad_files_are_errors() {
-        assert!(matches!(parse_pcd(&b"VERSION .7\n"[..]), Err(PcdError::Header(_))));
+        assert!(matches!(
+            parse_pcd(&b"VERSION .7\n"[..]),
+            Err(PcdError::Header(_))
+        ));
         let short = "FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 10\nPOINTS 10\nDATA binary\nabc";
-        assert!(matches!(parse_pcd(short.as_bytes()), Err(PcdError::Data(_))));
-        let comp = "FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 1\nPOINTS 1\nDATA binary_compressed\n";
-        assert!(matches!(parse_pcd(comp.as_bytes()), Err(PcdError::Unsupported(_))));
+        assert!(matches!(
+            parse_pcd(short.as_bytes()),
+            Err(PcdError::Data(_))
+        ));
+        let comp =
+            "FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 1\nPOINTS 1\nDATA binary_compressed\n";
+        assert!(matches!(
+            parse_pcd(comp.as_bytes()),
+            Err(PcdError::Unsupported(_))
+        ));
         let odd = "FIELDS x y z\nSIZE 4 4 3\nTYPE F F F\nWIDTH 1\nPOINTS 1\nDATA binary\n";
-        assert!(matches!(parse_pcd(odd.as_bytes()), Err(PcdError::Header(_))));
+        assert!(matches!(
+            parse_pcd(odd.as_bytes()),
+            Err(PcdError::Header(_))
+        ));
     }
 }

@@ -1,7 +1,7 @@
 //! PLY point clouds (vertex x y z and optional intensity; ascii or binary little-endian).
 
 use crate::cloud::Point;
-use std::io::{BufRead, BufReader, Read};
+use std::io::{BufRead, BufReader};
 use std::path::Path;
 
 /// Why a PLY file could not be read.
@@ -44,16 +44,17 @@ pub fn parse_ply(mut r: impl BufRead) -> Result<Vec<Point>, PlyError> {
         match t.as_slice() {
             ["format", f, ..] => format = f.to_string(),
             ["element", "vertex", n] => {
-                n_vertex = Some(n.parse::<usize>().map_err(|_| PlyError::Header("vertex count".into()))?);
+                n_vertex = Some(
+                    n.parse::<usize>()
+                        .map_err(|_| PlyError::Header("vertex count".into()))?,
+                );
                 in_vertex = true;
             }
-            ["element", ..] => {
-                if n_vertex.is_some() {
-                    // Elements after the vertices (faces) are ignored; vertices come first in the file.
-                    in_vertex = false;
-                }
+            // Elements after the vertices (faces) are ignored; vertices come first in the file.
+            ["element", ..] if n_vertex.is_some() => in_vertex = false,
+            ["property", "list", ..] if in_vertex => {
+                return Err(PlyError::Header("list property on vertex".into()))
             }
-            ["property", "list", ..] if in_vertex => return Err(PlyError::Header("list property on vertex".into())),
             ["property", ty, name] if in_vertex => {
                 let (size, kind) = match *ty {
                     "float" | "float32" => (4, 'f'),
@@ -84,7 +85,8 @@ pub fn parse_ply(mut r: impl BufRead) -> Result<Vec<Point>, PlyError> {
         "binary_little_endian" => {
             let stride: usize = props.iter().map(|p| p.1).sum();
             let mut buf = vec![0u8; stride * n];
-            r.read_exact(&mut buf).map_err(|_| PlyError::Data("file shorter than header says".into()))?;
+            r.read_exact(&mut buf)
+                .map_err(|_| PlyError::Data("file shorter than header says".into()))?;
             for rec in buf.chunks_exact(stride) {
                 let mut off = 0;
                 let mut row = Vec::with_capacity(props.len());
@@ -92,7 +94,9 @@ pub fn parse_ply(mut r: impl BufRead) -> Result<Vec<Point>, PlyError> {
                     let b = &rec[off..off + size];
                     let v = match (kind, size) {
                         ('f', 4) => f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
-                        ('f', 8) => f64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]),
+                        ('f', 8) => {
+                            f64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]])
+                        }
                         ('u', 1) => b[0] as f64,
                         ('i', 1) => b[0] as i8 as f64,
                         ('u', 2) => u16::from_le_bytes([b[0], b[1]]) as f64,
@@ -109,7 +113,8 @@ pub fn parse_ply(mut r: impl BufRead) -> Result<Vec<Point>, PlyError> {
         "ascii" => {
             for line in r.lines() {
                 let line = line?;
-                let vals: Result<Vec<f64>, _> = line.split_whitespace().map(str::parse::<f64>).collect();
+                let vals: Result<Vec<f64>, _> =
+                    line.split_whitespace().map(str::parse::<f64>).collect();
                 let vals = vals.map_err(|_| PlyError::Data(format!("bad line {line:?}")))?;
                 if vals.len() < props.len() {
                     continue;

@@ -69,7 +69,11 @@ pub fn parse_poses(text: &str, path: &str) -> Result<Vec<Isometry3<f64>>, Sequen
             continue;
         }
         let v: Result<Vec<f64>, _> = line.split_whitespace().map(str::parse::<f64>).collect();
-        let v = v.map_err(|e| SequenceError::Parse { path: path.into(), line: i + 1, msg: e.to_string() })?;
+        let v = v.map_err(|e| SequenceError::Parse {
+            path: path.into(),
+            line: i + 1,
+            msg: e.to_string(),
+        })?;
         if v.len() != 12 {
             return Err(SequenceError::Parse {
                 path: path.into(),
@@ -101,7 +105,18 @@ pub fn format_pose(p: &Isometry3<f64>) -> String {
     let t = p.translation.vector;
     format!(
         "{:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9}",
-        m[(0, 0)], m[(0, 1)], m[(0, 2)], t.x, m[(1, 0)], m[(1, 1)], m[(1, 2)], t.y, m[(2, 0)], m[(2, 1)], m[(2, 2)], t.z
+        m[(0, 0)],
+        m[(0, 1)],
+        m[(0, 2)],
+        t.x,
+        m[(1, 0)],
+        m[(1, 1)],
+        m[(1, 2)],
+        t.y,
+        m[(2, 0)],
+        m[(2, 1)],
+        m[(2, 2)],
+        t.z
     )
 }
 
@@ -118,9 +133,17 @@ pub fn read_odometry(dir: impl AsRef<Path>) -> Result<Option<Vec<OdomSample>>, S
             continue;
         }
         let v: Result<Vec<f64>, _> = line.split_whitespace().map(str::parse::<f64>).collect();
-        let v = v.map_err(|e| SequenceError::Parse { path: path.clone(), line: i + 1, msg: e.to_string() })?;
+        let v = v.map_err(|e| SequenceError::Parse {
+            path: path.clone(),
+            line: i + 1,
+            msg: e.to_string(),
+        })?;
         if v.len() != 6 {
-            return Err(SequenceError::Parse { path: path.clone(), line: i + 1, msg: "want 6 numbers".into() });
+            return Err(SequenceError::Parse {
+                path: path.clone(),
+                line: i + 1,
+                msg: "want 6 numbers".into(),
+            });
         }
         out.push(OdomSample {
             t_s: v[0],
@@ -152,9 +175,11 @@ pub fn read_stamps(dir: impl AsRef<Path>) -> Result<Option<Vec<f64>>, SequenceEr
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty())
         .map(|(i, l)| {
-            l.trim()
-                .parse::<f64>()
-                .map_err(|e| SequenceError::Parse { path: path.clone(), line: i + 1, msg: e.to_string() })
+            l.trim().parse::<f64>().map_err(|e| SequenceError::Parse {
+                path: path.clone(),
+                line: i + 1,
+                msg: e.to_string(),
+            })
         })
         .collect::<Result<Vec<_>, _>>()
         .map(Some)
@@ -179,7 +204,8 @@ mod tests {
 
     #[test]
     fn reads_the_kitti_sequence() {
-        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/lidar/kitti-seq");
+        let root =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/lidar/kitti-seq");
         if !root.is_dir() {
             println!("skipping reads_the_kitti_sequence: ../shared/data is absent");
             return;
@@ -189,7 +215,10 @@ mod tests {
         assert_eq!(poses.len(), files.len());
         let pts = crate::pcd::read_pcd(&files[0]).unwrap();
         assert!(pts.len() > 100_000, "{}", pts.len());
-        let path_m: f64 = poses.windows(2).map(|w| (w[1].translation.vector - w[0].translation.vector).norm()).sum();
+        let path_m: f64 = poses
+            .windows(2)
+            .map(|w| (w[1].translation.vector - w[0].translation.vector).norm())
+            .sum();
         assert!((20.0..40.0).contains(&path_m), "{path_m}");
     }
 }

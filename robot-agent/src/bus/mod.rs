@@ -1,3 +1,853 @@
-//! The only place that touches Zenoh: publishes session, pose, tiles, path and status; answers
-//! queries; receives and validates commands.
+//! The only place that touches Zenoh: publishes session, pose, tiles, path, status and routes;
+//! answers queries for the session, every current tile and the recorded routes; receives and
+//! validates commands.
+//!
+//! Two faces: [`RobotBus`] is async (tokio), [`BusHandle`] is the blocking-friendly face for the
+//! synchronous simulation loop (its `publish_*` calls never block: they hand the message to the
+//! bus task). Commands arrive validated as [`Command`]; refused ones arrive as
+//! [`Command::Refused`] with the reason, so the agent can put it in its status.
+
 pub mod orpheus;
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use common::grid::TileIndex;
+use common::keys::{self, RobotId, Topic};
+use common::msg::{self, DriveCmd, GoalCmd, GoalTarget, Path, Pose, Route, RouteCmd, Session, SpeedCmd, Status, StopCmd};
+use tokio::sync::mpsc;
+use zenoh::qos::CongestionControl;
+
+/// Teleop silence after which the robot must stop.
+pub const DEADMAN: Duration = Duration::from_millis(300);
+
+/// Default endpoint of the operator station (agents connect, the station listens).
+pub const DEFAULT_STATION_ENDPOINT: &str = "tcp/127.0.0.1:7447";
+
+/// Why the bus could not start.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum BusError {
+    /// The Zenoh configuration could not be read or is invalid.
+    #[error("zenoh config: {0}")]
+    Config(String),
+    /// The Zenoh session or one of its declarations failed.
+    #[error("zenoh: {0}")]
+    Zenoh(String),
+    /// The background runtime could not be started.
+    #[error("runtime: {0}")]
+    Runtime(String),
+}
+
+fn zerr(e: impl std::fmt::Display) -> BusError {
+    BusError::Zenoh(e.to_string())
+}
+
+/// Zenoh mode.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum ZenohMode {
+    /// Peer (default): connects to the given endpoints, others may connect to it.
+    #[default]
+    Peer,
+    /// Client of a router (or of a peer that listens).
+    Client,
+}
+
+/// Where the Zenoh session connects and listens.
+#[derive(Clone, Debug, Default)]
+pub struct ZenohSettings {
+    /// A json5 Zenoh config file (`config/zenoh/*.json5`); the fields below override it.
+    pub file: Option<PathBuf>,
+    /// Mode when no file is given (a file's own `mode` wins).
+    pub mode: Option<ZenohMode>,
+    /// Endpoints to connect to, e.g. `tcp/127.0.0.1:7447`.
+    pub connect: Vec<String>,
+    /// Endpoints to listen on.
+    pub listen: Vec<String>,
+}
+
+impl ZenohSettings {
+    /// Settings that connect to one endpoint (the station's listen endpoint).
+    pub fn connect_to(endpoint: impl Into<String>) -> Self {
+        Self {
+            connect: vec![endpoint.into()],
+            ..Self::default()
+        }
+    }
+
+    /// Settings that listen on one endpoint (what the station does).
+    pub fn listen_on(endpoint: impl Into<String>) -> Self {
+        Self {
+            listen: vec![endpoint.into()],
+            ..Self::default()
+        }
+    }
+
+    /// Builds the Zenoh config: the file (or terranav defaults), multicast scouting off, short
+    /// lease so a vanished peer is declared gone within 2 s, fast reconnect, then the overrides.
+    pub fn to_config(&self) -> Result<zenoh::Config, BusError> {
+        let mut c = match &self.file {
+            Some(f) => zenoh::Config::from_file(f)
+                .map_err(|e| BusError::Config(format!("{}: {e}", f.display())))?,
+            None => {
+                let mut c = zenoh::Config::default();
+                apply_terranav_defaults(&mut c)?;
+                c
+            }
+        };
+        let set = |c: &mut zenoh::Config, k: &str, v: &str| {
+            c.insert_json5(k, v)
+                .map_err(|e| BusError::Config(format!("{k} = {v}: {e}")))
+        };
+        if self.file.is_none() {
+            let mode = match self.mode.unwrap_or_default() {
+                ZenohMode::Peer => "\"peer\"",
+                ZenohMode::Client => "\"client\"",
+            };
+            set(&mut c, "mode", mode)?;
+        }
+        // Whatever the file says, never scout by multicast: a fresh machine needs no network set-up
+        // and tests on one host must not find each other.
+        set(&mut c, "scouting/multicast/enabled", "false")?;
+        if !self.connect.is_empty() {
+            let v = serde_json::to_string(&self.connect).map_err(|e| BusError::Config(e.to_string()))?;
+            set(&mut c, "connect/endpoints", &v)?;
+        }
+        if !self.listen.is_empty() {
+            let v = serde_json::to_string(&self.listen).map_err(|e| BusError::Config(e.to_string()))?;
+            set(&mut c, "listen/endpoints", &v)?;
+        }
+        Ok(c)
+    }
+}
+
+/// Link lease (ms): a peer silent for this long is dropped and its liveliness tokens vanish.
+/// Four keep-alives per lease; 1.5 s keeps detection of a frozen or unplugged robot under 2 s
+/// (a killed process closes its TCP socket and is detected at once).
+pub const LEASE_MS: u64 = 1500;
+
+/// The terranav defaults that `config/zenoh/*.json5` also spell out.
+pub fn apply_terranav_defaults(c: &mut zenoh::Config) -> Result<(), BusError> {
+    let kv = [
+        ("scouting/multicast/enabled", "false".to_string()),
+        ("transport/link/tx/lease", LEASE_MS.to_string()),
+        ("transport/link/tx/keep_alive", "4".to_string()),
+        // Retry a lost endpoint every 0.5-1 s so a restarted station is rejoined quickly.
+        ("connect/retry/period_init_ms", "500".to_string()),
+        ("connect/retry/period_max_ms", "1000".to_string()),
+        ("connect/retry/period_increase_factor", "1.5".to_string()),
+    ];
+    for (k, v) in kv {
+        c.insert_json5(k, &v)
+            .map_err(|e| BusError::Config(format!("{k} = {v}: {e}")))?;
+    }
+    Ok(())
+}
+
+/// Limits used to validate commands.
+#[derive(Clone, Copy, Debug)]
+pub struct CommandLimits {
+    /// Largest accepted |v| of a drive command, m/s.
+    pub max_speed_mps: f32,
+    /// Largest accepted |omega| of a drive command, rad/s.
+    pub max_omega_rps: f32,
+    /// Largest accepted distance of a map goal from the origin, metres.
+    pub max_goal_range_m: f64,
+}
+
+impl Default for CommandLimits {
+    fn default() -> Self {
+        Self {
+            max_speed_mps: 2.0,
+            max_omega_rps: 2.0,
+            max_goal_range_m: 100_000.0,
+        }
+    }
+}
+
+/// Everything [`RobotBus::open`] needs.
+#[derive(Clone, Debug)]
+pub struct BusConfig {
+    /// This robot.
+    pub robot: RobotId,
+    /// Zenoh endpoints.
+    pub zenoh: ZenohSettings,
+    /// Command validation limits.
+    pub limits: CommandLimits,
+}
+
+impl BusConfig {
+    /// A robot connecting to the station's default endpoint.
+    pub fn new(robot: RobotId) -> Self {
+        Self {
+            robot,
+            zenoh: ZenohSettings::connect_to(DEFAULT_STATION_ENDPOINT),
+            limits: CommandLimits::default(),
+        }
+    }
+}
+
+/// A validated command, or the reason one was refused.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Command {
+    /// Go to a goal.
+    Goal(GoalCmd),
+    /// Route teach / repeat.
+    Route(RouteCmd),
+    /// Teleop.
+    Drive(DriveCmd),
+    /// Stop now.
+    Stop(StopCmd),
+    /// Speed limit.
+    Speed(SpeedCmd),
+    /// A command that was refused (already counted); put `reason` in the status.
+    Refused {
+        /// Human-readable reason, prefixed with the command kind, e.g. `goal: latitude out of range`.
+        reason: String,
+    },
+}
+
+/// Counters of the bus, for the status message.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BusCounters {
+    /// Commands refused since start.
+    pub commands_refused: u32,
+    /// Payloads on command keys that failed to decode since start.
+    pub decode_errors: u32,
+}
+
+/// What the robot currently serves to queries.
+#[derive(Default)]
+struct Served {
+    session: Option<Vec<u8>>,
+    tiles: BTreeMap<TileIndex, Vec<u8>>,
+    routes: BTreeMap<String, Vec<u8>>,
+}
+
+struct Shared {
+    robot: RobotId,
+    limits: CommandLimits,
+    served: Mutex<Served>,
+    refused: AtomicU32,
+    decode_errors: AtomicU32,
+    last_drive: Mutex<Option<(Instant, u32)>>,
+}
+
+impl Shared {
+    fn lock_served(&self) -> std::sync::MutexGuard<'_, Served> {
+        self.served.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+/// One robot's Zenoh session (async face).
+pub struct RobotBus {
+    session: zenoh::Session,
+    shared: Arc<Shared>,
+    _token: zenoh::liveliness::LivelinessToken,
+    tasks: Vec<tokio::task::JoinHandle<()>>,
+}
+
+fn ok_f64(v: f64) -> bool {
+    v.is_finite()
+}
+
+/// Validates a decoded command against the limits; `Err` is the refusal reason.
+pub fn validate(cmd: &Command, limits: &CommandLimits) -> Result<(), String> {
+    match cmd {
+        Command::Goal(g) => {
+            if !(g.tolerance_m.is_finite() && (0.0..=100.0).contains(&g.tolerance_m)) {
+                return Err(format!("goal: tolerance {} m out of range 0-100", g.tolerance_m));
+            }
+            match g.target {
+                GoalTarget::Map { x_m, y_m } => {
+                    if !(ok_f64(x_m) && ok_f64(y_m)) {
+                        return Err("goal: coordinates are not finite".into());
+                    }
+                    if x_m.hypot(y_m) > limits.max_goal_range_m {
+                        return Err(format!(
+                            "goal: ({x_m:.1}, {y_m:.1}) is beyond {} m of the map origin",
+                            limits.max_goal_range_m
+                        ));
+                    }
+                }
+                GoalTarget::Gnss { lat_deg, lon_deg, h_m } => {
+                    if !(ok_f64(lat_deg) && (-90.0..=90.0).contains(&lat_deg)) {
+                        return Err(format!("goal: latitude {lat_deg} out of range"));
+                    }
+                    if !(ok_f64(lon_deg) && (-180.0..=180.0).contains(&lon_deg)) {
+                        return Err(format!("goal: longitude {lon_deg} out of range"));
+                    }
+                    if let Some(h) = h_m {
+                        if !(ok_f64(h) && (-1000.0..=10_000.0).contains(&h)) {
+                            return Err(format!("goal: height {h} m out of range"));
+                        }
+                    }
+                }
+            }
+        }
+        Command::Drive(d) => {
+            if !(d.v_mps.is_finite() && d.v_mps.abs() <= limits.max_speed_mps) {
+                return Err(format!(
+                    "drive: speed {} m/s beyond the limit {} m/s",
+                    d.v_mps, limits.max_speed_mps
+                ));
+            }
+            if !(d.omega_rps.is_finite() && d.omega_rps.abs() <= limits.max_omega_rps) {
+                return Err(format!(
+                    "drive: turn rate {} rad/s beyond the limit {} rad/s",
+                    d.omega_rps, limits.max_omega_rps
+                ));
+            }
+        }
+        Command::Speed(s) => {
+            if !(s.limit_mps.is_finite() && s.limit_mps > 0.0) {
+                return Err(format!("speed: limit {} m/s must be positive", s.limit_mps));
+            }
+        }
+        Command::Route(r) => match r {
+            RouteCmd::Record { name } => {
+                if name.trim().is_empty() || name.len() > 200 {
+                    return Err("route: name must have 1-200 characters".into());
+                }
+            }
+            RouteCmd::Repeat { route, .. } => {
+                if route.points.is_empty() {
+                    return Err(format!("route: route {} has no points", route.route_id));
+                }
+                if route
+                    .points
+                    .iter()
+                    .any(|p| !(ok_f64(p.x_m) && ok_f64(p.y_m) && p.yaw_rad.is_finite()))
+                {
+                    return Err(format!("route: route {} has non-finite points", route.route_id));
+                }
+            }
+            _ => {}
+        },
+        Command::Stop(_) | Command::Refused { .. } => {}
+    }
+    Ok(())
+}
+
+/// Decodes and validates one command payload on `key`. `None` when the key is not a command of
+/// this robot. Undecodable payloads and invalid commands come back as `Refused`.
+pub fn parse_command(robot: &RobotId, key: &str, payload: &[u8], limits: &CommandLimits) -> Option<(Command, bool)> {
+    let (rid, topic) = keys::parse(key).ok()?;
+    if &rid != robot || !topic.is_command() {
+        return None;
+    }
+    fn dec<T: serde::de::DeserializeOwned>(kind: &str, b: &[u8], f: fn(T) -> Command) -> Result<Command, String> {
+        msg::decode::<T>(b).map(f).map_err(|e| format!("{kind}: {e}"))
+    }
+    let decoded = match topic {
+        Topic::CmdGoal => dec("goal", payload, Command::Goal),
+        Topic::CmdRoute => dec("route", payload, Command::Route),
+        Topic::CmdDrive => dec("drive", payload, Command::Drive),
+        Topic::CmdStop => dec("stop", payload, Command::Stop),
+        Topic::CmdSpeed => dec("speed", payload, Command::Speed),
+        _ => return None,
+    };
+    // The bool says whether the failure was a decode error (counted separately from refusals).
+    Some(match decoded {
+        Ok(cmd) => match validate(&cmd, limits) {
+            Ok(()) => (cmd, false),
+            Err(reason) => (Command::Refused { reason }, false),
+        },
+        Err(reason) => (Command::Refused { reason }, true),
+    })
+}
+
+fn now_unix_ms() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_millis() as u64)
+        .unwrap_or(0)
+}
+
+impl RobotBus {
+    /// Opens the session, declares the liveliness token, the queryables and the command
+    /// subscriber. Commands go to `commands`.
+    pub async fn open(config: BusConfig, commands: std::sync::mpsc::Sender<Command>) -> Result<Self, BusError> {
+        let zc = config.zenoh.to_config()?;
+        let session = zenoh::open(zc).await.map_err(zerr)?;
+        let robot = config.robot.clone();
+        let shared = Arc::new(Shared {
+            robot: robot.clone(),
+            limits: config.limits,
+            served: Mutex::new(Served::default()),
+            refused: AtomicU32::new(0),
+            decode_errors: AtomicU32::new(0),
+            last_drive: Mutex::new(None),
+        });
+        let mut tasks = Vec::new();
+
+        // Commands.
+        let sub = session
+            .declare_subscriber(keys::robot_commands(&robot))
+            .await
+            .map_err(zerr)?;
+        {
+            let shared = shared.clone();
+            tasks.push(tokio::spawn(async move {
+                while let Ok(sample) = sub.recv_async().await {
+                    let key = sample.key_expr().as_str().to_string();
+                    let payload = sample.payload().to_bytes();
+                    let Some((cmd, decode_error)) =
+                        parse_command(&shared.robot, &key, &payload, &shared.limits)
+                    else {
+                        continue;
+                    };
+                    let cmd = match cmd {
+                        Command::Refused { reason } => {
+                            if decode_error {
+                                shared.decode_errors.fetch_add(1, Ordering::Relaxed);
+                            }
+                            shared.refused.fetch_add(1, Ordering::Relaxed);
+                            tracing::warn!(key, reason, "command refused");
+                            Command::Refused { reason }
+                        }
+                        Command::Drive(d) => {
+                            let now = Instant::now();
+                            let mut last = shared.last_drive.lock().unwrap_or_else(|p| p.into_inner());
+                            // Older sequence numbers are stale duplicates, unless the deadman has
+                            // expired (a restarted station counts from anew).
+                            if let Some((t, seq)) = *last {
+                                if d.seq <= seq && now.duration_since(t) < Duration::from_secs(1) {
+                                    continue;
+                                }
+                            }
+                            *last = Some((now, d.seq));
+                            Command::Drive(d)
+                        }
+                        other => other,
+                    };
+                    if commands.send(cmd).is_err() {
+                        break;
+                    }
+                }
+            }));
+        }
+
+        // Session queryable.
+        let q = session
+            .declare_queryable(keys::key(&robot, Topic::Session))
+            .await
+            .map_err(zerr)?;
+        {
+            let shared = shared.clone();
+            let key = keys::key(&robot, Topic::Session);
+            tasks.push(tokio::spawn(async move {
+                while let Ok(query) = q.recv_async().await {
+                    let s = shared.lock_served().session.clone();
+                    if let Some(s) = s {
+                        if let Err(e) = query.reply(&key, s).await {
+                            tracing::warn!("session reply failed: {e}");
+                        }
+                    }
+                }
+            }));
+        }
+
+        // Tiles queryable: answers every current tile matching the query.
+        let q = session
+            .declare_queryable(keys::robot_tiles(&robot))
+            .await
+            .map_err(zerr)?;
+        {
+            let shared = shared.clone();
+            let robot = robot.clone();
+            tasks.push(tokio::spawn(async move {
+                while let Ok(query) = q.recv_async().await {
+                    let tiles: Vec<(TileIndex, Vec<u8>)> = shared
+                        .lock_served()
+                        .tiles
+                        .iter()
+                        .map(|(k, v)| (*k, v.clone()))
+                        .collect();
+                    let qk = query.key_expr().clone();
+                    for (t, bytes) in tiles {
+                        let key = keys::key(&robot, Topic::Tile { tx: t.tx, ty: t.ty });
+                        let Ok(ke) = zenoh::key_expr::KeyExpr::try_from(key.clone()) else {
+                            continue;
+                        };
+                        if !qk.intersects(&ke) {
+                            continue;
+                        }
+                        if let Err(e) = query.reply(ke, bytes).await {
+                            tracing::warn!("tile reply {key} failed: {e}");
+                        }
+                    }
+                }
+            }));
+        }
+
+        // Routes queryable.
+        let q = session
+            .declare_queryable(keys::key(&robot, Topic::Route))
+            .await
+            .map_err(zerr)?;
+        {
+            let shared = shared.clone();
+            let key = keys::key(&robot, Topic::Route);
+            tasks.push(tokio::spawn(async move {
+                while let Ok(query) = q.recv_async().await {
+                    let routes: Vec<Vec<u8>> = shared.lock_served().routes.values().cloned().collect();
+                    for r in routes {
+                        if let Err(e) = query.reply(&key, r).await {
+                            tracing::warn!("route reply failed: {e}");
+                        }
+                    }
+                }
+            }));
+        }
+
+        let token = session
+            .liveliness()
+            .declare_token(keys::key(&robot, Topic::Alive))
+            .await
+            .map_err(zerr)?;
+        Ok(Self {
+            session,
+            shared,
+            _token: token,
+            tasks,
+        })
+    }
+
+    /// This robot.
+    pub fn robot(&self) -> &RobotId {
+        &self.shared.robot
+    }
+
+    async fn put(&self, topic: Topic, payload: Vec<u8>, reliable: bool) -> Result<(), BusError> {
+        let key = keys::key(&self.shared.robot, topic);
+        let cc = if reliable {
+            CongestionControl::Block
+        } else {
+            CongestionControl::Drop
+        };
+        self.session
+            .put(key, payload)
+            .congestion_control(cc)
+            .await
+            .map_err(zerr)
+    }
+
+    /// Publishes (and from now on serves) the session.
+    pub async fn publish_session(&self, s: &Session) -> Result<(), BusError> {
+        let b = msg::encode(s);
+        self.shared.lock_served().session = Some(b.clone());
+        self.put(Topic::Session, b, true).await
+    }
+
+    /// Publishes a pose.
+    pub async fn publish_pose(&self, p: &Pose) -> Result<(), BusError> {
+        self.put(Topic::Pose, msg::encode(p), false).await
+    }
+
+    /// Publishes a changed tile, already encoded with `common::grid::encode_tile`, and keeps it
+    /// for the tile queryable.
+    pub async fn publish_tile(&self, index: TileIndex, encoded: Vec<u8>) -> Result<(), BusError> {
+        self.shared.lock_served().tiles.insert(index, encoded.clone());
+        self.put(Topic::Tile { tx: index.tx, ty: index.ty }, encoded, true).await
+    }
+
+    /// Publishes the planned path.
+    pub async fn publish_path(&self, p: &Path) -> Result<(), BusError> {
+        self.put(Topic::Path, msg::encode(p), true).await
+    }
+
+    /// Publishes the status.
+    pub async fn publish_status(&self, s: &Status) -> Result<(), BusError> {
+        self.put(Topic::Status, msg::encode(s), true).await
+    }
+
+    /// Publishes (and from now on serves) a recorded route.
+    pub async fn publish_route(&self, r: &Route) -> Result<(), BusError> {
+        let b = msg::encode(r);
+        self.shared.lock_served().routes.insert(r.route_id.clone(), b.clone());
+        self.put(Topic::Route, b, true).await
+    }
+
+    /// Forgets every served tile (a new session starts a new map).
+    pub fn clear_tiles(&self) {
+        self.shared.lock_served().tiles.clear();
+    }
+
+    /// Counters for the status.
+    pub fn counters(&self) -> BusCounters {
+        BusCounters {
+            commands_refused: self.shared.refused.load(Ordering::Relaxed),
+            decode_errors: self.shared.decode_errors.load(Ordering::Relaxed),
+        }
+    }
+
+    /// When the last accepted drive command arrived.
+    pub fn last_drive(&self) -> Option<Instant> {
+        self.shared
+            .last_drive
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .map(|(t, _)| t)
+    }
+
+    /// True when no drive command arrived within [`DEADMAN`] before `now` (or none ever).
+    pub fn drive_is_stale(&self, now: Instant) -> bool {
+        match self.last_drive() {
+            Some(t) => now.saturating_duration_since(t) > DEADMAN,
+            None => true,
+        }
+    }
+
+    /// Closes the session (the liveliness token goes with it).
+    pub async fn close(self) -> Result<(), BusError> {
+        for t in &self.tasks {
+            t.abort();
+        }
+        self.session.close().await.map_err(zerr)
+    }
+}
+
+/// Messages from the synchronous loop to the bus task.
+enum Out {
+    Session(Session),
+    Pose(Pose),
+    Tile(TileIndex, Vec<u8>),
+    Path(Path),
+    Status(Status),
+    Route(Route),
+    ClearTiles,
+}
+
+/// Blocking-friendly face of the bus for a synchronous loop: owns a small tokio runtime on a
+/// background thread; `publish_*` never block (they queue for the bus task).
+pub struct BusHandle {
+    tx: mpsc::UnboundedSender<Out>,
+    commands: std::sync::mpsc::Receiver<Command>,
+    shared: Arc<Shared>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    _stop: Option<tokio::sync::oneshot::Sender<()>>,
+}
+
+impl BusHandle {
+    /// Starts the runtime and opens the bus; returns when the session is open.
+    pub fn start(config: BusConfig) -> Result<Self, BusError> {
+        let (cmd_tx, cmd_rx) = std::sync::mpsc::channel();
+        let (tx, mut rx) = mpsc::unbounded_channel::<Out>();
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel::<Result<Arc<Shared>, BusError>>();
+        let (stop_tx, mut stop_rx) = tokio::sync::oneshot::channel::<()>();
+        let thread = std::thread::Builder::new()
+            .name("robot-bus".into())
+            .spawn(move || {
+                let rt = match tokio::runtime::Builder::new_multi_thread()
+                    .worker_threads(2)
+                    .enable_all()
+                    .build()
+                {
+                    Ok(rt) => rt,
+                    Err(e) => {
+                        let _ = ready_tx.send(Err(BusError::Runtime(e.to_string())));
+                        return;
+                    }
+                };
+                rt.block_on(async move {
+                    let bus = match RobotBus::open(config, cmd_tx).await {
+                        Ok(b) => b,
+                        Err(e) => {
+                            let _ = ready_tx.send(Err(e));
+                            return;
+                        }
+                    };
+                    let _ = ready_tx.send(Ok(bus.shared.clone()));
+                    loop {
+                        let out = tokio::select! {
+                            m = rx.recv() => match m { Some(m) => m, None => break },
+                            _ = &mut stop_rx => break,
+                        };
+                        let r = match out {
+                            Out::Session(s) => bus.publish_session(&s).await,
+                            Out::Pose(p) => bus.publish_pose(&p).await,
+                            Out::Tile(i, b) => bus.publish_tile(i, b).await,
+                            Out::Path(p) => bus.publish_path(&p).await,
+                            Out::Status(s) => bus.publish_status(&s).await,
+                            Out::Route(r) => bus.publish_route(&r).await,
+                            Out::ClearTiles => {
+                                bus.clear_tiles();
+                                Ok(())
+                            }
+                        };
+                        if let Err(e) = r {
+                            tracing::warn!("publish failed: {e}");
+                        }
+                    }
+                    let _ = bus.close().await;
+                });
+            })
+            .map_err(|e| BusError::Runtime(e.to_string()))?;
+        let shared = ready_rx
+            .recv()
+            .map_err(|_| BusError::Runtime("bus thread ended before opening".into()))??;
+        Ok(Self {
+            tx,
+            commands: cmd_rx,
+            shared,
+            thread: Some(thread),
+            _stop: Some(stop_tx),
+        })
+    }
+
+    fn send(&self, o: Out) {
+        // The bus task only ends when the handle is dropped; a send error then is harmless.
+        let _ = self.tx.send(o);
+    }
+
+    /// Publishes (and serves) the session.
+    pub fn publish_session(&self, s: &Session) {
+        self.send(Out::Session(s.clone()));
+    }
+    /// Publishes a pose.
+    pub fn publish_pose(&self, p: &Pose) {
+        self.send(Out::Pose(p.clone()));
+    }
+    /// Publishes (and serves) one tile encoded with `common::grid::encode_tile`.
+    pub fn publish_tile(&self, index: TileIndex, encoded: Vec<u8>) {
+        self.send(Out::Tile(index, encoded));
+    }
+    /// Publishes the path.
+    pub fn publish_path(&self, p: &Path) {
+        self.send(Out::Path(p.clone()));
+    }
+    /// Publishes the status.
+    pub fn publish_status(&self, s: &Status) {
+        self.send(Out::Status(s.clone()));
+    }
+    /// Publishes (and serves) a recorded route.
+    pub fn publish_route(&self, r: &Route) {
+        self.send(Out::Route(r.clone()));
+    }
+    /// Forgets every served tile.
+    pub fn clear_tiles(&self) {
+        self.send(Out::ClearTiles);
+    }
+
+    /// The next command, if any (validated, or `Refused`).
+    pub fn try_recv(&self) -> Option<Command> {
+        self.commands.try_recv().ok()
+    }
+
+    /// Waits up to `timeout` for the next command.
+    pub fn recv_timeout(&self, timeout: Duration) -> Option<Command> {
+        self.commands.recv_timeout(timeout).ok()
+    }
+
+    /// Counters for the status.
+    pub fn counters(&self) -> BusCounters {
+        BusCounters {
+            commands_refused: self.shared.refused.load(Ordering::Relaxed),
+            decode_errors: self.shared.decode_errors.load(Ordering::Relaxed),
+        }
+    }
+
+    /// True when no drive command arrived within [`DEADMAN`] before `now` (or none ever).
+    pub fn drive_is_stale(&self, now: Instant) -> bool {
+        match *self.shared.last_drive.lock().unwrap_or_else(|p| p.into_inner()) {
+            Some((t, _)) => now.saturating_duration_since(t) > DEADMAN,
+            None => true,
+        }
+    }
+
+    /// Current Unix time in milliseconds (what every message's `t_unix_ms` should carry).
+    pub fn now_unix_ms() -> u64 {
+        now_unix_ms()
+    }
+
+    /// Flushes queued messages and closes the session.
+    pub fn close(mut self) {
+        self.shutdown();
+    }
+
+    fn shutdown(&mut self) {
+        // Dropping the queue sender lets the task drain what is queued, then close.
+        let (dead_tx, _) = mpsc::unbounded_channel();
+        drop(std::mem::replace(&mut self.tx, dead_tx));
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for BusHandle {
+    fn drop(&mut self) {
+        self.shutdown();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rid() -> RobotId {
+        RobotId::new("husky-1").unwrap()
+    }
+
+    fn parse(key: &str, b: &[u8]) -> Option<(Command, bool)> {
+        parse_command(&rid(), key, b, &CommandLimits::default())
+    }
+
+    #[test]
+    fn valid_commands_pass() {
+        let g = GoalCmd {
+            goal_id: 1,
+            target: GoalTarget::Map { x_m: 3.0, y_m: -2.0 },
+            tolerance_m: 0.5,
+        };
+        let (c, de) = parse("terranav/husky-1/cmd/goal", &msg::encode(&g)).unwrap();
+        assert_eq!(c, Command::Goal(g));
+        assert!(!de);
+        let s = SpeedCmd { limit_mps: 0.7 };
+        let (c, _) = parse("terranav/husky-1/cmd/speed", &msg::encode(&s)).unwrap();
+        assert_eq!(c, Command::Speed(s));
+    }
+
+    #[test]
+    fn bad_commands_are_refused_with_reasons() {
+        let g = GoalCmd {
+            goal_id: 1,
+            target: GoalTarget::Gnss { lat_deg: 91.0, lon_deg: 0.0, h_m: None },
+            tolerance_m: 0.5,
+        };
+        let (c, de) = parse("terranav/husky-1/cmd/goal", &msg::encode(&g)).unwrap();
+        assert!(matches!(c, Command::Refused { ref reason } if reason.contains("latitude")), "{c:?}");
+        assert!(!de);
+        let d = DriveCmd { seq: 1, v_mps: f32::NAN, omega_rps: 0.0, deadman: true };
+        let (c, _) = parse("terranav/husky-1/cmd/drive", &msg::encode(&d)).unwrap();
+        assert!(matches!(c, Command::Refused { .. }));
+        let d = DriveCmd { seq: 1, v_mps: 5.0, omega_rps: 0.0, deadman: true };
+        let (c, _) = parse("terranav/husky-1/cmd/drive", &msg::encode(&d)).unwrap();
+        assert!(matches!(c, Command::Refused { ref reason } if reason.contains("speed")));
+        let (c, de) = parse("terranav/husky-1/cmd/stop", &[1, 2, 3, 4]).unwrap();
+        assert!(matches!(c, Command::Refused { .. }));
+        assert!(de);
+        // Another schema version.
+        let mut b = msg::encode(&StopCmd::default());
+        b[0] = 7;
+        let (c, de) = parse("terranav/husky-1/cmd/stop", &b).unwrap();
+        assert!(matches!(c, Command::Refused { ref reason } if reason.contains("schema")));
+        assert!(de);
+        // Another robot's or a non-command key is not ours.
+        assert!(parse("terranav/husky-2/cmd/stop", &msg::encode(&StopCmd::default())).is_none());
+        assert!(parse("terranav/husky-1/pose", &[]).is_none());
+    }
+
+    #[test]
+    fn config_has_multicast_off_and_short_lease() {
+        let c = ZenohSettings::connect_to("tcp/127.0.0.1:7999").to_config().unwrap();
+        let j = format!("{c}");
+        assert!(j.contains("7999"), "{j}");
+        assert_eq!(c.get_json("scouting/multicast/enabled").unwrap(), "false");
+        assert_eq!(c.get_json("transport/link/tx/lease").unwrap(), LEASE_MS.to_string());
+    }
+}
