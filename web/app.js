@@ -573,13 +573,13 @@ function showToast(level, text) {
 }
 
 /** A robot-side error, from WS `error` or from `status.last_error`; shown once per change. */
-function robotError(name, message) {
+function robotError(name, message, toast = true) {
   const r = robotView(name);
   const now = Date.now();
   if (r.lastError === message && now - r.lastErrorAt < 30000) return;
   r.lastError = message;
   r.lastErrorAt = now;
-  logMsg("error", `${name}: ${message}`);
+  logMsg("error", `${name}: ${message}`, toast);
 }
 
 document.getElementById("log-clear").addEventListener("click", () => (logEl.innerHTML = ""));
@@ -1090,9 +1090,11 @@ function setPath(r, points) {
 }
 
 function applyStatus(r, s) {
+  const first = !r.status;
   if (!r.status || s.t_unix_ms !== r.status.t_unix_ms) r.statusAt = Date.now();
   r.status = s;
-  if (s.last_error) robotError(r.name, s.last_error);
+  // An error that predates the page goes to the log and the robot card, a new one also pops up.
+  if (s.last_error) robotError(r.name, s.last_error, !first);
   if (r.name === state.selected) {
     syncSpeedSlider(s.speed_limit_mps);
     updateRecordButton();

@@ -6,4 +6,5 @@ pub mod api;
 pub mod cli;
 pub mod fleet;
 pub mod merge;
+pub mod station;
 pub mod store;

@@ -1,6 +1,5 @@
-//! `operator-station`: the terranav operator station.
+//! `operator-station`: the terranav operator station (see `operator-station --help`).
 
-fn main() {
-    eprintln!("operator-station: not built yet");
-    std::process::exit(2);
+fn main() -> anyhow::Result<()> {
+    operator_station::cli::main()
 }

@@ -1,1 +1,454 @@
-//! merge (being written).
+//! The merged map: tiles of every robot merged per datum into one large map, newer evidence
+//! winning per cell (`Cell::stamp_s`, ties broken by `hits`).
+//!
+//! [`MergedMap`] is plain data (no threads, no clock); [`MergeWorker`] runs it on its own thread
+//! fed by a channel so decoding and merging never block the network tasks.
+
+use std::collections::BTreeMap;
+use std::sync::{mpsc, Arc, RwLock};
+
+use common::grid::{decode_tile, encode_tile, Cell, CellState, Lattice, Tile, TileIndex};
+
+/// Why a tile was not merged.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum MergeError {
+    /// The payload is not a valid tile.
+    #[error("undecodable tile: {0}")]
+    Decode(String),
+    /// The tile's lattice differs from the datum's.
+    #[error("tile lattice {got:?} differs from the datum's {want:?}")]
+    LatticeMismatch {
+        /// Lattice of the tile.
+        got: Lattice,
+        /// Lattice of the datum.
+        want: Lattice,
+    },
+}
+
+/// One merged tile.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MergedTile {
+    /// `tile_cells^2` cells, row 0 = south.
+    pub cells: Vec<Cell>,
+    /// Station version: +1 whenever a cell changes.
+    pub version: u64,
+}
+
+/// The merged tiles of one datum.
+#[derive(Clone, Debug)]
+pub struct DatumMap {
+    /// The lattice every tile of this datum lives on.
+    pub lattice: Lattice,
+    /// Tiles by index.
+    pub tiles: BTreeMap<TileIndex, MergedTile>,
+}
+
+impl DatumMap {
+    /// Bounds of the known tiles, metres: `[xmin, ymin, xmax, ymax]`, or None when empty.
+    pub fn bounds_m(&self) -> Option<[f64; 4]> {
+        let first = self.tiles.keys().next()?;
+        let (mut x0, mut y0, mut x1, mut y1) = (first.tx, first.ty, first.tx, first.ty);
+        for t in self.tiles.keys() {
+            x0 = x0.min(t.tx);
+            y0 = y0.min(t.ty);
+            x1 = x1.max(t.tx);
+            y1 = y1.max(t.ty);
+        }
+        let side = self.lattice.cell_size_f64() * self.lattice.tile_cells as f64;
+        Some([
+            x0 as f64 * side,
+            y0 as f64 * side,
+            (x1 + 1) as f64 * side,
+            (y1 + 1) as f64 * side,
+        ])
+    }
+
+    /// The merged tile as a `common::grid::Tile` (its version is the station's).
+    pub fn tile(&self, index: TileIndex) -> Option<Tile> {
+        let m = self.tiles.get(&index)?;
+        Some(Tile {
+            index,
+            lattice: self.lattice,
+            version: m.version,
+            cells: m.cells.clone(),
+        })
+    }
+}
+
+/// True when `new` is better evidence than `cur`: newer stamp, or same stamp and more hits.
+/// Unknown cells never win.
+pub fn newer_wins(new: &Cell, cur: &Cell) -> bool {
+    if new.state == CellState::Unknown {
+        return false;
+    }
+    if cur.state == CellState::Unknown {
+        return true;
+    }
+    new.stamp_s > cur.stamp_s || (new.stamp_s == cur.stamp_s && new.hits > cur.hits)
+}
+
+/// A merged tile that changed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TileChange {
+    /// Datum of the tile.
+    pub datum_id: String,
+    /// Index.
+    pub index: TileIndex,
+    /// New station version.
+    pub version: u64,
+}
+
+/// Every datum's merged tiles.
+#[derive(Clone, Debug, Default)]
+pub struct MergedMap {
+    /// Datum maps by `datum_id`.
+    pub datums: BTreeMap<String, DatumMap>,
+}
+
+impl MergedMap {
+    /// Merges one tile into the datum's map. Returns the new version when any cell changed.
+    pub fn merge(&mut self, datum_id: &str, tile: &Tile) -> Result<Option<u64>, MergeError> {
+        let dm = self
+            .datums
+            .entry(datum_id.to_string())
+            .or_insert_with(|| DatumMap {
+                lattice: tile.lattice,
+                tiles: BTreeMap::new(),
+            });
+        if dm.lattice.tile_cells != tile.lattice.tile_cells
+            || dm.lattice.cell_size_f64() != tile.lattice.cell_size_f64()
+        {
+            return Err(MergeError::LatticeMismatch {
+                got: tile.lattice,
+                want: dm.lattice,
+            });
+        }
+        let n = tile.lattice.tile_cells as usize;
+        if tile.cells.len() != n * n {
+            return Err(MergeError::Decode("cell count".into()));
+        }
+        let m = dm.tiles.entry(tile.index).or_insert_with(|| MergedTile {
+            cells: vec![Cell::UNKNOWN; n * n],
+            version: 0,
+        });
+        let mut changed = false;
+        for (cur, new) in m.cells.iter_mut().zip(&tile.cells) {
+            if newer_wins(new, cur) && cur != new {
+                *cur = *new;
+                changed = true;
+            }
+        }
+        if changed {
+            m.version += 1;
+            Ok(Some(m.version))
+        } else {
+            Ok(None)
+        }
+    }
+
+    /// Puts a tile back as stored (loading from the database): replaces cells and version.
+    pub fn restore(&mut self, datum_id: &str, tile: Tile) {
+        let dm = self
+            .datums
+            .entry(datum_id.to_string())
+            .or_insert_with(|| DatumMap {
+                lattice: tile.lattice,
+                tiles: BTreeMap::new(),
+            });
+        dm.tiles.insert(
+            tile.index,
+            MergedTile {
+                cells: tile.cells,
+                version: tile.version,
+            },
+        );
+    }
+}
+
+/// RGBA of a cell in the map images (API.md colours).
+pub fn cell_rgba(c: &Cell) -> [u8; 4] {
+    match c.state {
+        CellState::Unknown => [0, 0, 0, 0],
+        CellState::Traversable => [0x9c, 0xcc, 0x65, 140],
+        CellState::Inflated => [0xff, 0xb7, 0x4d, 220],
+        CellState::Obstacle => [0xe5, 0x39, 0x35, 255],
+    }
+}
+
+/// Encodes RGBA pixels as PNG.
+pub fn png_rgba(width: u32, height: u32, rgba: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut out, width, height);
+        enc.set_color(png::ColorType::Rgba);
+        enc.set_depth(png::BitDepth::Eight);
+        // Writing into a Vec cannot fail for a correctly sized image.
+        if let Ok(mut w) = enc.write_header() {
+            let _ = w.write_image_data(rgba);
+        }
+    }
+    out
+}
+
+/// A merged tile as PNG, row 0 = north.
+pub fn tile_png(tile: &MergedTile, tile_cells: u16) -> Vec<u8> {
+    let n = tile_cells as usize;
+    let mut rgba = vec![0u8; n * n * 4];
+    for row in 0..n {
+        let src = n - 1 - row;
+        for col in 0..n {
+            let px = cell_rgba(&tile.cells[src * n + col]);
+            rgba[(row * n + col) * 4..][..4].copy_from_slice(&px);
+        }
+    }
+    png_rgba(n as u32, n as u32, &rgba)
+}
+
+/// The whole map of a datum as one PNG (north up), for exports. None when the datum is empty.
+pub fn datum_png(dm: &DatumMap) -> Option<Vec<u8>> {
+    let first = dm.tiles.keys().next()?;
+    let (mut x0, mut y0, mut x1, mut y1) = (first.tx, first.ty, first.tx, first.ty);
+    for t in dm.tiles.keys() {
+        x0 = x0.min(t.tx);
+        y0 = y0.min(t.ty);
+        x1 = x1.max(t.tx);
+        y1 = y1.max(t.ty);
+    }
+    let n = dm.lattice.tile_cells as usize;
+    let w = (x1 - x0 + 1) as usize * n;
+    let h = (y1 - y0 + 1) as usize * n;
+    // Dark background so unknown is visible in a viewer.
+    let mut rgba: Vec<u8> = [40u8, 40, 40, 255].repeat(w * h);
+    for (idx, t) in &dm.tiles {
+        let ox = (idx.tx - x0) as usize * n;
+        let oy = (idx.ty - y0) as usize * n; // from the south edge
+        for r in 0..n {
+            for c in 0..n {
+                let cell = &t.cells[r * n + c];
+                if cell.state == CellState::Unknown {
+                    continue;
+                }
+                let [cr, cg, cb, a] = cell_rgba(cell);
+                let y_img = h - 1 - (oy + r);
+                let p = &mut rgba[(y_img * w + ox + c) * 4..][..4];
+                let af = a as f32 / 255.0;
+                for (d, s) in p.iter_mut().zip([cr, cg, cb]) {
+                    *d = (s as f32 * af + *d as f32 * (1.0 - af)).round() as u8;
+                }
+            }
+        }
+    }
+    Some(png_rgba(w as u32, h as u32, &rgba))
+}
+
+/// One tile to merge: the robot's encoded payload and the datum it belongs to.
+#[derive(Clone, Debug)]
+pub struct MergeJob {
+    /// Datum of the robot's session.
+    pub datum_id: String,
+    /// Robot (for logs).
+    pub robot: String,
+    /// Payload from `common::grid::encode_tile`.
+    pub encoded: Vec<u8>,
+}
+
+/// Called by the worker for every merged tile that changed, with the tile re-encoded.
+pub type ChangeSink = Box<dyn FnMut(TileChange, Vec<u8>) + Send>;
+
+enum MergeMsg {
+    Job(MergeJob),
+    Stop,
+}
+
+/// Queue of the merge thread (cheap to clone).
+#[derive(Clone)]
+pub struct MergeQueue(mpsc::Sender<MergeMsg>);
+
+impl MergeQueue {
+    /// Queues a tile; false when the worker has stopped.
+    pub fn send(&self, job: MergeJob) -> bool {
+        self.0.send(MergeMsg::Job(job)).is_ok()
+    }
+}
+
+/// Merging on a dedicated thread.
+pub struct MergeWorker {
+    tx: mpsc::Sender<MergeMsg>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl MergeWorker {
+    /// Starts the thread; `errors` counts undecodable or mismatching tiles.
+    pub fn start(
+        map: Arc<RwLock<MergedMap>>,
+        mut sink: ChangeSink,
+        errors: Arc<std::sync::atomic::AtomicU64>,
+    ) -> Self {
+        let (tx, rx) = mpsc::channel::<MergeMsg>();
+        let thread = std::thread::Builder::new()
+            .name("merge".into())
+            .spawn(move || {
+                while let Ok(MergeMsg::Job(job)) = rx.recv() {
+                    let tile = match decode_tile(&job.encoded) {
+                        Ok(t) => t,
+                        Err(e) => {
+                            errors.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                            tracing::warn!(robot = job.robot, "tile refused: {e}");
+                            continue;
+                        }
+                    };
+                    let result = {
+                        let mut m = map.write().unwrap_or_else(|p| p.into_inner());
+                        match m.merge(&job.datum_id, &tile) {
+                            Ok(Some(v)) => Ok(m
+                                .datums
+                                .get(&job.datum_id)
+                                .and_then(|d| d.tile(tile.index))
+                                .map(|t| (v, t))),
+                            Ok(None) => Ok(None),
+                            Err(e) => Err(e),
+                        }
+                    };
+                    match result {
+                        Ok(Some((version, merged))) => {
+                            // Encode outside the lock: readers (the PNG handler) never wait on zstd.
+                            let enc = encode_tile(&merged);
+                            sink(
+                                TileChange {
+                                    datum_id: job.datum_id,
+                                    index: tile.index,
+                                    version,
+                                },
+                                enc,
+                            );
+                        }
+                        Ok(None) => {}
+                        Err(e) => {
+                            errors.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                            tracing::warn!(robot = job.robot, "tile not merged: {e}");
+                        }
+                    }
+                }
+            })
+            .expect("spawn the merge thread");
+        Self {
+            tx,
+            thread: Some(thread),
+        }
+    }
+
+    /// A sender for jobs.
+    pub fn sender(&self) -> MergeQueue {
+        MergeQueue(self.tx.clone())
+    }
+
+    /// Stops after the queued jobs are merged.
+    pub fn finish(mut self) {
+        let _ = self.tx.send(MergeMsg::Stop);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cell(state: CellState, stamp_s: u32, hits: u8, h: i16) -> Cell {
+        Cell {
+            state,
+            cost: 0,
+            height_cm: h,
+            hits,
+            stamp_s,
+        }
+    }
+
+    fn tile(tx: i32, ty: i32, f: impl Fn(usize, usize) -> Cell) -> Tile {
+        let mut t = Tile::new(TileIndex { tx, ty }, Lattice::default());
+        let n = 64;
+        for r in 0..n {
+            for c in 0..n {
+                t.cells[r * n + c] = f(c, r);
+            }
+        }
+        t
+    }
+
+    #[test]
+    fn overlapping_tiles_of_two_robots_merge_cell_exactly() {
+        // Robot A saw the west half at t=100, robot B the east half plus an overlap band at t=200.
+        let a = tile(2, -1, |c, _| {
+            if c < 40 {
+                cell(CellState::Traversable, 100, 5, 10)
+            } else {
+                Cell::UNKNOWN
+            }
+        });
+        let b = tile(2, -1, |c, r| {
+            if c >= 32 {
+                let s = if r == 7 { CellState::Obstacle } else { CellState::Traversable };
+                cell(s, 200, 3, 20)
+            } else {
+                Cell::UNKNOWN
+            }
+        });
+        let mut m = MergedMap::default();
+        assert_eq!(m.merge("d0", &a).unwrap(), Some(1));
+        assert_eq!(m.merge("d0", &b).unwrap(), Some(2));
+        let t = m.datums["d0"].tile(TileIndex { tx: 2, ty: -1 }).unwrap();
+        for r in 0..64 {
+            for c in 0..64 {
+                let got = t.get(c as u16, r as u16);
+                let want = if c >= 32 { *b.get(c as u16, r as u16) } else { *a.get(c as u16, r as u16) };
+                assert_eq!(*got, want, "cell ({c},{r})");
+            }
+        }
+        // Same merge in the other order gives the same map.
+        let mut m2 = MergedMap::default();
+        m2.merge("d0", &b).unwrap();
+        m2.merge("d0", &a).unwrap();
+        assert_eq!(m2.datums["d0"].tiles[&TileIndex { tx: 2, ty: -1 }].cells, t.cells);
+    }
+
+    #[test]
+    fn stale_tile_never_overwrites_newer_cells() {
+        let new = tile(0, 0, |_, _| cell(CellState::Obstacle, 500, 2, 1));
+        let old = tile(0, 0, |_, _| cell(CellState::Traversable, 400, 200, 2));
+        let mut m = MergedMap::default();
+        m.merge("d0", &new).unwrap();
+        assert_eq!(m.merge("d0", &old).unwrap(), None, "nothing changes");
+        let t = &m.datums["d0"].tiles[&TileIndex { tx: 0, ty: 0 }];
+        assert!(t.cells.iter().all(|c| c.state == CellState::Obstacle));
+        assert_eq!(t.version, 1);
+        // Same stamp: more hits wins.
+        let tie = tile(0, 0, |_, _| cell(CellState::Traversable, 500, 9, 3));
+        assert_eq!(m.merge("d0", &tie).unwrap(), Some(2));
+        // Re-sending the same tile changes nothing (no version bump).
+        assert_eq!(m.merge("d0", &tie).unwrap(), None);
+    }
+
+    #[test]
+    fn lattice_mismatch_is_refused() {
+        let mut m = MergedMap::default();
+        m.merge("d0", &tile(0, 0, |_, _| Cell::UNKNOWN)).unwrap();
+        let mut t = Tile::new(TileIndex { tx: 0, ty: 0 }, Lattice { cell_size_m: 0.5, tile_cells: 32 });
+        t.cells[0] = cell(CellState::Obstacle, 1, 1, 0);
+        assert!(matches!(m.merge("d0", &t), Err(MergeError::LatticeMismatch { .. })));
+    }
+
+    #[test]
+    fn png_has_north_on_top() {
+        let t = tile(0, 0, |_, r| if r == 63 { cell(CellState::Obstacle, 1, 1, 0) } else { Cell::UNKNOWN });
+        let mt = MergedTile { cells: t.cells, version: 1 };
+        let png = tile_png(&mt, 64);
+        let dec = png::Decoder::new(std::io::Cursor::new(png));
+        let mut r = dec.read_info().unwrap();
+        let mut buf = vec![0; r.output_buffer_size().unwrap()];
+        r.next_frame(&mut buf).unwrap();
+        assert_eq!(&buf[..4], &[0xe5, 0x39, 0x35, 255], "top row is the northmost");
+        assert_eq!(buf[64 * 4 * 63 + 3], 0, "bottom row unknown, transparent");
+    }
+}

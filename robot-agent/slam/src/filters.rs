@@ -171,13 +171,18 @@ pub fn normals_and_density(
     let index = KdIndex::build(&points);
     let k = cfg.normal_knn.max(3);
     let max_density = cfg.max_density_per_m3 as f32;
+    let max_dist_m = if cfg.normal_max_dist_m > 0.0 {
+        cfg.normal_max_dist_m as f32
+    } else {
+        1e15
+    };
     let mut out = OrientedCloud {
         points: Vec::with_capacity(points.len()),
         normals: Vec::with_capacity(points.len()),
     };
     let mut nb = Vec::with_capacity(k);
     for p in &points {
-        index.knn_within(p, k, f32::MAX.sqrt() / 2.0, &mut nb);
+        index.knn_within(p, k, max_dist_m, &mut nb);
         let Some(mut n) = pca_normal(&points, &nb) else {
             continue;
         };

@@ -136,9 +136,10 @@ pub fn apply_terranav_defaults(c: &mut zenoh::Config) -> Result<(), BusError> {
         ("transport/link/tx/lease", LEASE_MS.to_string()),
         ("transport/link/tx/keep_alive", "4".to_string()),
         // Retry a lost endpoint every 0.5-1 s so a restarted station is rejoined quickly.
-        ("connect/retry/period_init_ms", "500".to_string()),
-        ("connect/retry/period_max_ms", "1000".to_string()),
-        ("connect/retry/period_increase_factor", "1.5".to_string()),
+        (
+            "connect/retry",
+            "{period_init_ms: 500, period_max_ms: 1000, period_increase_factor: 1.5}".to_string(),
+        ),
     ];
     for (k, v) in kv {
         c.insert_json5(k, &v)

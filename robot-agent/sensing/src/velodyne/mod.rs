@@ -90,6 +90,11 @@ pub struct VelodyneConfig {
     pub cut_angle_deg: Option<f32>,
     /// Azimuth interpolation.
     pub interpolation: AzimuthInterpolation,
+    /// Reject packets whose product byte is not 0x22 (VLP-16). Early (2014) VLP-16 firmware
+    /// writes 0x21, the HDL-32E's id, as `lidar/vlp16/velodyne_vlp16.pcap` shows (its channels
+    /// `c` and `c + 16` are the same laser and it turns 0.4 deg per block: VLP-16 layout and
+    /// timing). Set false to decode such captures; an HDL-32E stream would then decode wrongly.
+    pub require_vlp16_product: bool,
 }
 
 impl Default for VelodyneConfig {
@@ -101,6 +106,7 @@ impl Default for VelodyneConfig {
             max_azimuth_deg: 360.0,
             cut_angle_deg: Some(0.0),
             interpolation: AzimuthInterpolation::Exact,
+            require_vlp16_product: true,
         }
     }
 }
@@ -117,6 +123,7 @@ impl VelodyneConfig {
             max_azimuth_deg: 359.0,
             cut_angle_deg: Some(0.0),
             interpolation: AzimuthInterpolation::NebulaCompat,
+            require_vlp16_product: true,
         }
     }
 }

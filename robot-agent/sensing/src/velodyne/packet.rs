@@ -160,8 +160,8 @@ pub struct PacketInfo {
     pub first_azimuth_cdeg: u16,
 }
 
-/// Checks a packet's size, block flags, azimuths, return mode and product.
-pub fn inspect_packet(data: &[u8]) -> Result<PacketInfo, PacketError> {
+/// Checks a packet's size, block flags, azimuths, return mode and (when `require_vlp16`) product.
+pub fn inspect_packet(data: &[u8], require_vlp16: bool) -> Result<PacketInfo, PacketError> {
     if data.len() != PACKET_SIZE {
         return Err(PacketError::WrongSize(data.len()));
     }
@@ -175,7 +175,7 @@ pub fn inspect_packet(data: &[u8]) -> Result<PacketInfo, PacketError> {
         }
     }
     let product = data[PRODUCT_OFFSET];
-    if product != PRODUCT_VLP16 {
+    if require_vlp16 && product != PRODUCT_VLP16 {
         return Err(PacketError::UnknownProduct(product));
     }
     let mode_byte = data[RETURN_MODE_OFFSET];
@@ -314,7 +314,7 @@ pub(crate) fn decode_firings(
     out: &mut Vec<VelodyneReturn>,
     mut on_firing: impl FnMut(f64, usize),
 ) -> Result<PacketInfo, PacketError> {
-    let info = inspect_packet(data)?;
+    let info = inspect_packet(data, config.require_vlp16_product)?;
     let dual = info.mode == ReturnMode::Dual;
     let azimuths = block_azimuths(data, dual, config.interpolation);
     let compat = config.interpolation == AzimuthInterpolation::NebulaCompat;
@@ -536,5 +536,47 @@ pub(crate) mod tests {
         decode_packet(&synthetic(0x38, 0, 20, 2400), &cfg, &mut out).unwrap();
         assert_eq!(out.len(), 384);
         assert!(out.iter().all(|r| r.return_type == ReturnType::Last));
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn random_bytes_never_panic(bytes in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..1300)) {
+            let mut out = Vec::new();
+            let _ = decode_packet(&bytes, &VelodyneConfig::default(), &mut out);
+        }
+
+        /// Valid framing with random contents (azimuths, distances, modes): decodes, never panics,
+        /// and every return is finite and within range.
+        #[test]
+        fn random_contents_decode_sanely(
+            body in proptest::collection::vec(proptest::prelude::any::<u8>(), PACKET_SIZE),
+            mode in 0x37u8..=0x39,
+            compat in proptest::prelude::any::<bool>(),
+        ) {
+            let mut p = body;
+            for b in 0..BLOCKS_PER_PACKET {
+                p[b * BLOCK_SIZE] = 0xFF;
+                p[b * BLOCK_SIZE + 1] = 0xEE;
+                let az = u16::from_le_bytes([p[b * BLOCK_SIZE + 2], p[b * BLOCK_SIZE + 3]]) % 36000;
+                p[b * BLOCK_SIZE + 2..b * BLOCK_SIZE + 4].copy_from_slice(&az.to_le_bytes());
+            }
+            p[RETURN_MODE_OFFSET] = mode;
+            p[PRODUCT_OFFSET] = PRODUCT_VLP16;
+            let cfg = VelodyneConfig {
+                interpolation: if compat { AzimuthInterpolation::NebulaCompat } else { AzimuthInterpolation::Exact },
+                ..VelodyneConfig::default()
+            };
+            let mut out = Vec::new();
+            proptest::prop_assert!(decode_packet(&p, &cfg, &mut out).is_ok());
+            for r in &out {
+                proptest::prop_assert!(r.point.is_finite());
+                proptest::prop_assert!(r.distance_m > 0.3 && r.distance_m < 130.0);
+                proptest::prop_assert!((0.0..std::f32::consts::TAU + 1e-6).contains(&r.azimuth_rad));
+            }
+            let mut asm = crate::velodyne::ScanAssembler::new(cfg);
+            asm.push_packet(&p, 0.0);
+            asm.push_packet(&p, 0.0);
+            let _ = asm.finish();
+        }
     }
 }

@@ -1,0 +1,676 @@
+//! The station's Zenoh side and its wiring: subscribes to `terranav/**`, tracks liveliness,
+//! resyncs late or reconnecting robots through their queryables, feeds the merge thread and the
+//! store thread, and broadcasts live events for the WebSocket.
+
+use std::collections::BTreeMap;
+use std::path::{Path as FsPath, PathBuf};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use std::sync::{mpsc, Arc, Mutex, RwLock};
+use std::time::{Duration, Instant};
+
+use common::grid::{decode_tile, Lattice};
+use common::keys::{self, RobotId, Topic};
+use common::msg::{self, Datum, Path, Pose, Route, Session, Status};
+use serde_json::json;
+use tokio::sync::broadcast;
+use zenoh::query::ConsolidationMode;
+use zenoh::sample::SampleKind;
+
+use crate::fleet::{Fleet, RateTopic, MAX_PENDING_TILES};
+use crate::merge::{MergeJob, MergeQueue, MergeWorker, MergedMap, TileChange};
+use crate::store::{self, DatumRow, RouteRow, SessionRow, StoreOp, StoreWriter};
+
+/// Version of the station.
+pub const VERSION: &str = env!("CARGO_PKG_VERSION");
+
+/// Default Zenoh endpoint the station listens on (robots connect there).
+pub const DEFAULT_LISTEN_ENDPOINT: &str = "tcp/127.0.0.1:7447";
+
+/// Why the station failed to start.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum StationError {
+    /// Zenoh config or session error.
+    #[error("zenoh: {0}")]
+    Zenoh(String),
+    /// Database error.
+    #[error(transparent)]
+    Store(#[from] store::StoreError),
+}
+
+fn zerr(e: impl std::fmt::Display) -> StationError {
+    StationError::Zenoh(e.to_string())
+}
+
+/// Unix time now, milliseconds.
+pub fn now_unix_ms() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_millis() as u64)
+        .unwrap_or(0)
+}
+
+/// Builds a Zenoh config: a json5 file or the terranav defaults (peer, multicast scouting off,
+/// 1.5 s lease, fast reconnect), then explicit listen/connect endpoints and mode.
+pub fn zenoh_config(
+    file: Option<&FsPath>,
+    mode: Option<&str>,
+    listen: &[String],
+    connect: &[String],
+) -> Result<zenoh::Config, StationError> {
+    let mut c = match file {
+        Some(f) => zenoh::Config::from_file(f).map_err(|e| zerr(format!("{}: {e}", f.display())))?,
+        None => {
+            let mut c = zenoh::Config::default();
+            for (k, v) in [
+                ("mode", "\"peer\""),
+                ("transport/link/tx/lease", "1500"),
+                ("transport/link/tx/keep_alive", "4"),
+                (
+                    "connect/retry",
+                    "{period_init_ms: 500, period_max_ms: 1000, period_increase_factor: 1.5}",
+                ),
+            ] {
+                c.insert_json5(k, v).map_err(zerr)?;
+            }
+            c
+        }
+    };
+    c.insert_json5("scouting/multicast/enabled", "false").map_err(zerr)?;
+    if let Some(m) = mode {
+        c.insert_json5("mode", &format!("{m:?}")).map_err(zerr)?;
+    }
+    if !listen.is_empty() {
+        c.insert_json5("listen/endpoints", &serde_json::to_string(listen).map_err(zerr)?)
+            .map_err(zerr)?;
+    }
+    if !connect.is_empty() {
+        c.insert_json5("connect/endpoints", &serde_json::to_string(connect).map_err(zerr)?)
+            .map_err(zerr)?;
+    }
+    Ok(c)
+}
+
+/// Options of a running station.
+#[derive(Clone, Debug)]
+pub struct StationOptions {
+    /// Zenoh config.
+    pub zenoh: zenoh::Config,
+    /// Database file.
+    pub db: PathBuf,
+}
+
+/// Known datums (ids stable across restarts through the store).
+#[derive(Clone, Debug, Default)]
+pub struct Datums {
+    /// By id.
+    pub rows: BTreeMap<String, DatumRow>,
+}
+
+impl Datums {
+    /// The id of a session's datum, creating it if new. Returns (id, newly created).
+    pub fn assign(&mut self, s: &Session) -> (String, bool) {
+        let lattice = (s.cell_size_m, s.tile_cells);
+        if let Some(d) = s.datum {
+            for row in self.rows.values() {
+                if let (Some(la), Some(lo), Some(h)) = (row.lat_deg, row.lon_deg, row.h_m) {
+                    if (la - d.lat_deg).abs() < 1e-9
+                        && (lo - d.lon_deg).abs() < 1e-9
+                        && (h - d.h_m).abs() < 1e-3
+                        && (row.cell_size_m, row.tile_cells) == lattice
+                    {
+                        return (row.datum_id.clone(), false);
+                    }
+                }
+            }
+            let n = self.rows.values().filter(|r| r.lat_deg.is_some()).count();
+            let mut i = n;
+            let id = loop {
+                let id = format!("d{i}");
+                if !self.rows.contains_key(&id) {
+                    break id;
+                }
+                i += 1;
+            };
+            self.insert(&id, Some(d), lattice);
+            (id, true)
+        } else {
+            let id = format!("local-{}", s.session_id);
+            if self.rows.contains_key(&id) {
+                return (id, false);
+            }
+            self.insert(&id, None, lattice);
+            (id, true)
+        }
+    }
+
+    fn insert(&mut self, id: &str, d: Option<Datum>, lattice: (f32, u16)) {
+        self.rows.insert(
+            id.to_string(),
+            DatumRow {
+                datum_id: id.to_string(),
+                lat_deg: d.map(|d| d.lat_deg),
+                lon_deg: d.map(|d| d.lon_deg),
+                h_m: d.map(|d| d.h_m),
+                cell_size_m: lattice.0,
+                tile_cells: lattice.1,
+            },
+        );
+    }
+
+    /// The datum as WGS-84, when it has one.
+    pub fn geodetic(&self, id: &str) -> Option<Datum> {
+        let r = self.rows.get(id)?;
+        Some(Datum {
+            lat_deg: r.lat_deg?,
+            lon_deg: r.lon_deg?,
+            h_m: r.h_m.unwrap_or(0.0),
+        })
+    }
+}
+
+/// Shared state of a running station.
+pub struct Inner {
+    /// Zenoh session.
+    pub session: zenoh::Session,
+    /// Robots.
+    pub fleet: Mutex<Fleet>,
+    /// Datums.
+    pub datums: Mutex<Datums>,
+    /// Merged map.
+    pub map: Arc<RwLock<MergedMap>>,
+    /// Live events (JSON text) for WebSocket clients.
+    pub events: broadcast::Sender<Arc<str>>,
+    /// Payloads on robot keys that failed to decode.
+    pub decode_errors: Arc<AtomicU64>,
+    /// Database file (readers open their own connection).
+    pub db: PathBuf,
+    store_tx: Mutex<mpsc::Sender<StoreOp>>,
+    merge_tx: MergeQueue,
+    /// Next goal id.
+    pub goal_seq: AtomicU32,
+    /// Next drive sequence number.
+    pub drive_seq: AtomicU32,
+    reader: Mutex<Option<rusqlite::Connection>>,
+}
+
+/// A running station.
+pub struct Station {
+    /// Shared state.
+    pub inner: Arc<Inner>,
+    merge: Option<MergeWorker>,
+    store: Option<StoreWriter>,
+    _subs: Vec<Box<dyn std::any::Any + Send + Sync>>,
+}
+
+fn robot_event(r: &str, online: bool, t: u64) -> String {
+    json!({"type": "robot", "robot": r, "online": online, "last_seen_unix_ms": t}).to_string()
+}
+
+impl Inner {
+    /// Sends a live event to every WebSocket client.
+    pub fn emit(&self, s: String) {
+        let _ = self.events.send(Arc::from(s));
+    }
+
+    /// Queues a store write.
+    pub fn store(&self, op: StoreOp) {
+        let _ = self.store_tx.lock().unwrap_or_else(|p| p.into_inner()).send(op);
+    }
+
+    fn merge(&self, job: MergeJob) {
+        self.merge_tx.send(job);
+    }
+
+    /// Runs `f` with the read connection (opened on first use).
+    pub fn read<T>(&self, f: impl FnOnce(&rusqlite::Connection) -> Result<T, store::StoreError>) -> Result<T, store::StoreError> {
+        let mut g = self.reader.lock().unwrap_or_else(|p| p.into_inner());
+        if g.is_none() {
+            *g = Some(store::open(&self.db)?);
+        }
+        match g.as_ref() {
+            Some(c) => f(c),
+            None => unreachable!("opened above"),
+        }
+    }
+
+    fn decode_error(&self, key: &str, e: impl std::fmt::Display) {
+        self.decode_errors.fetch_add(1, Ordering::Relaxed);
+        tracing::warn!(key, "undecodable payload: {e}");
+    }
+
+    /// Handles one sample from `terranav/**`.
+    pub fn on_sample(self: &Arc<Self>, key: &str, payload: &[u8]) {
+        let Ok((robot, topic)) = keys::parse(key) else {
+            // Not ours to judge (e.g. another application's key); count only robot keys.
+            if key.starts_with("terranav/") {
+                self.decode_error(key, "unknown key");
+            }
+            return;
+        };
+        let rid = robot.as_str().to_string();
+        let now = Instant::now();
+        let now_ms = now_unix_ms();
+        match topic {
+            Topic::Session => match msg::decode::<Session>(payload) {
+                Ok(s) if s.robot == rid => self.on_session(&rid, s, now_ms),
+                Ok(s) => self.decode_error(key, format!("session of robot {} on another robot's key", s.robot)),
+                Err(e) => self.decode_error(key, e),
+            },
+            Topic::Pose => match msg::decode::<Pose>(payload) {
+                Ok(p) => self.on_pose(&rid, p, now, now_ms),
+                Err(e) => self.decode_error(key, e),
+            },
+            Topic::Status => match msg::decode::<Status>(payload) {
+                Ok(s) => self.on_status(&rid, s, now, now_ms),
+                Err(e) => self.decode_error(key, e),
+            },
+            Topic::Path => match msg::decode::<Path>(payload) {
+                Ok(p) => self.on_path(&rid, p, now, now_ms),
+                Err(e) => self.decode_error(key, e),
+            },
+            Topic::Route => match msg::decode::<Route>(payload) {
+                Ok(r) => self.on_route(&rid, r),
+                Err(e) => self.decode_error(key, e),
+            },
+            Topic::Tile { tx, ty } => {
+                // Check the header cheaply here; the full decode runs on the merge thread.
+                match decode_tile(payload) {
+                    Ok(t) if t.index.tx == tx && t.index.ty == ty => {}
+                    Ok(_) => return self.decode_error(key, "tile index differs from its key"),
+                    Err(e) => return self.decode_error(key, e),
+                }
+                let datum = {
+                    let mut f = self.fleet.lock().unwrap_or_else(|p| p.into_inner());
+                    let r = f.robot(&rid);
+                    r.hit(RateTopic::Tile, now, now_ms);
+                    match r.datum_id.clone() {
+                        Some(d) => Some(d),
+                        None => {
+                            if r.pending_tiles.len() < MAX_PENDING_TILES {
+                                r.pending_tiles.push(payload.to_vec());
+                            }
+                            None
+                        }
+                    }
+                };
+                match datum {
+                    Some(datum_id) => self.merge(MergeJob {
+                        datum_id,
+                        robot: rid,
+                        encoded: payload.to_vec(),
+                    }),
+                    None => self.spawn_query(robot, false),
+                }
+            }
+            // Commands of other senders and the liveliness key are not station input.
+            _ => {}
+        }
+    }
+
+    fn on_session(self: &Arc<Self>, rid: &str, s: Session, now_ms: u64) {
+        if !(s.cell_size_m.is_finite() && s.cell_size_m > 0.0 && s.tile_cells > 0) {
+            return self.decode_error(&format!("terranav/{rid}/session"), "bad lattice");
+        }
+        let (datum_id, new_datum) = self.datums.lock().unwrap_or_else(|p| p.into_inner()).assign(&s);
+        if new_datum {
+            let row = self.datums.lock().unwrap_or_else(|p| p.into_inner()).rows.get(&datum_id).cloned();
+            if let Some(row) = row {
+                self.store(StoreOp::Datum(row));
+            }
+        }
+        let (changed, pending) = {
+            let mut f = self.fleet.lock().unwrap_or_else(|p| p.into_inner());
+            let r = f.robot(rid);
+            r.last_seen_unix_ms = r.last_seen_unix_ms.max(now_ms);
+            let changed = r.session.as_ref().map(|o| o.session_id != s.session_id).unwrap_or(true);
+            if changed {
+                r.last_track = None;
+                r.path = None;
+            }
+            r.session = Some(s.clone());
+            r.datum_id = Some(datum_id.clone());
+            (changed, std::mem::take(&mut r.pending_tiles))
+        };
+        for encoded in pending {
+            self.merge(MergeJob {
+                datum_id: datum_id.clone(),
+                robot: rid.to_string(),
+                encoded,
+            });
+        }
+        let json_s = serde_json::to_string(&s).unwrap_or_default();
+        self.store(StoreOp::Session {
+            row: SessionRow {
+                session_id: s.session_id.clone(),
+                robot: rid.to_string(),
+                start_unix_ms: s.start_unix_ms,
+                last_unix_ms: now_ms,
+                datum_id: datum_id.clone(),
+                source: s.source.clone(),
+            },
+            json: json_s,
+        });
+        if changed {
+            self.emit(json!({"type": "session", "robot": rid, "session": s, "datum_id": datum_id}).to_string());
+        }
+    }
+
+    fn on_pose(self: &Arc<Self>, rid: &str, p: Pose, now: Instant, now_ms: u64) {
+        let (emit, track, session, datum) = {
+            let mut f = self.fleet.lock().unwrap_or_else(|p| p.into_inner());
+            let r = f.robot(rid);
+            r.hit(RateTopic::Pose, now, now_ms);
+            let emit = r
+                .last_pose_event
+                .map(|t| now.duration_since(t) >= Duration::from_millis(95))
+                .unwrap_or(true);
+            if emit {
+                r.last_pose_event = Some(now);
+            }
+            let session = r.session.as_ref().map(|s| s.session_id.clone());
+            let track = session.is_some() && r.track_point(&p);
+            r.pose = Some(p.clone());
+            (emit, track, session, r.datum_id.clone())
+        };
+        if let (true, Some(sid)) = (track, session) {
+            self.store(StoreOp::Track {
+                session_id: sid.clone(),
+                t_unix_ms: p.t_unix_ms,
+                x: p.x_m,
+                y: p.y_m,
+                yaw: p.yaw_rad as f64,
+            });
+            self.store(StoreOp::SessionSeen {
+                session_id: sid,
+                last_unix_ms: now_ms,
+            });
+        }
+        if emit {
+            self.emit(json!({"type": "pose", "robot": rid, "datum_id": datum, "pose": p}).to_string());
+        }
+    }
+
+    fn on_status(self: &Arc<Self>, rid: &str, s: Status, now: Instant, now_ms: u64) {
+        let new_error = {
+            let mut f = self.fleet.lock().unwrap_or_else(|p| p.into_inner());
+            let r = f.robot(rid);
+            r.hit(RateTopic::Status, now, now_ms);
+            let prev = r.status.as_ref().and_then(|o| o.last_error.clone());
+            let new_error = match (&s.last_error, prev) {
+                (Some(e), Some(p)) if *e == p => None,
+                (Some(e), _) => Some(e.clone()),
+                _ => None,
+            };
+            r.status = Some(s.clone());
+            new_error
+        };
+        self.emit(json!({"type": "status", "robot": rid, "status": s}).to_string());
+        if let Some(e) = new_error {
+            self.emit(json!({"type": "error", "robot": rid, "message": e}).to_string());
+        }
+    }
+
+    fn on_path(self: &Arc<Self>, rid: &str, p: Path, now: Instant, now_ms: u64) {
+        let store_it = {
+            let mut f = self.fleet.lock().unwrap_or_else(|p| p.into_inner());
+            let r = f.robot(rid);
+            r.last_seen_unix_ms = r.last_seen_unix_ms.max(now_ms);
+            let store_it = match r.last_path_store {
+                Some((t, g)) => g != p.goal_id || now.duration_since(t) >= Duration::from_secs(2),
+                None => true,
+            };
+            if store_it {
+                r.last_path_store = Some((now, p.goal_id));
+            }
+            r.path = Some(p.clone());
+            store_it.then(|| r.session.as_ref().map(|s| s.session_id.clone())).flatten()
+        };
+        let points: Vec<[f32; 2]> = p.points_m.iter().map(|&(x, y)| [x, y]).collect();
+        if let Some(sid) = store_it {
+            self.store(StoreOp::Path {
+                session_id: sid,
+                robot: rid.to_string(),
+                t_unix_ms: p.t_unix_ms,
+                goal_id: p.goal_id,
+                json: serde_json::to_string(&points).unwrap_or_default(),
+            });
+        }
+        self.emit(json!({"type": "path", "robot": rid, "points": points}).to_string());
+    }
+
+    fn on_route(self: &Arc<Self>, rid: &str, r: Route) {
+        let datum_id = {
+            let f = self.fleet.lock().unwrap_or_else(|p| p.into_inner());
+            f.robots.get(rid).and_then(|s| s.datum_id.clone())
+        };
+        let row = route_row(&r, datum_id);
+        self.store(StoreOp::Route {
+            row: row.clone(),
+            json: serde_json::to_string(&r).unwrap_or_default(),
+        });
+        self.emit(json!({"type": "route", "route": row}).to_string());
+    }
+
+    fn on_liveliness(self: &Arc<Self>, key: &str, alive: bool) {
+        let Ok((robot, Topic::Alive)) = keys::parse(key) else {
+            return;
+        };
+        let now_ms = now_unix_ms();
+        let flipped = self
+            .fleet
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .set_online(robot.as_str(), alive, now_ms);
+        if flipped {
+            tracing::info!(robot = robot.as_str(), alive, "liveliness");
+            self.emit(robot_event(robot.as_str(), alive, now_ms));
+        }
+        if alive {
+            // A robot (re)appeared: fetch its session and every tile it has, so nothing
+            // published while we were apart is lost.
+            self.spawn_query(robot, true);
+        }
+    }
+
+    /// Asks a robot's queryables for its session and (if `tiles`) every tile and route.
+    pub fn spawn_query(self: &Arc<Self>, robot: RobotId, tiles: bool) {
+        let me = self.clone();
+        tokio::spawn(async move {
+            me.resync(&robot, tiles).await;
+        });
+    }
+
+    async fn get_all(self: &Arc<Self>, selector: String) -> usize {
+        let replies = match self
+            .session
+            .get(&selector)
+            .consolidation(ConsolidationMode::None)
+            .timeout(Duration::from_secs(5))
+            .await
+        {
+            Ok(r) => r,
+            Err(e) => {
+                tracing::warn!("query {selector} failed: {e}");
+                return 0;
+            }
+        };
+        let mut n = 0;
+        while let Ok(reply) = replies.recv_async().await {
+            if let Ok(sample) = reply.result() {
+                let key = sample.key_expr().as_str().to_string();
+                let payload = sample.payload().to_bytes();
+                self.on_sample(&key, &payload);
+                n += 1;
+            }
+        }
+        n
+    }
+
+    async fn resync(self: &Arc<Self>, robot: &RobotId, tiles: bool) {
+        self.get_all(keys::key(robot, Topic::Session)).await;
+        if tiles {
+            let n = self.get_all(keys::robot_tiles(robot)).await;
+            tracing::info!(robot = robot.as_str(), tiles = n, "resynced");
+            self.get_all(keys::key(robot, Topic::Route)).await;
+        }
+    }
+
+    /// Commits queued writes now, without blocking the async runtime.
+    pub async fn flush_store_async(self: &Arc<Self>) {
+        let me = self.clone();
+        let _ = tokio::task::spawn_blocking(move || me.flush_store()).await;
+    }
+
+    /// Commits queued writes now (tests).
+    pub fn flush_store(&self) {
+        let (ack, done) = mpsc::channel();
+        self.store(StoreOp::Flush(ack));
+        let _ = done.recv_timeout(Duration::from_secs(10));
+    }
+}
+
+/// The route summary row.
+pub fn route_row(r: &Route, datum_id: Option<String>) -> RouteRow {
+    let length_m = r
+        .points
+        .windows(2)
+        .map(|w| (w[1].x_m - w[0].x_m).hypot(w[1].y_m - w[0].y_m))
+        .sum();
+    RouteRow {
+        route_id: r.route_id.clone(),
+        name: r.name.clone(),
+        robot: r.robot.clone(),
+        session_id: r.session_id.clone(),
+        datum_id,
+        points: r.points.len() as u32,
+        length_m,
+    }
+}
+
+impl Station {
+    /// Opens the database (restoring the merged map), the Zenoh session, and starts listening.
+    pub async fn start(opts: StationOptions) -> Result<Station, StationError> {
+        let store = StoreWriter::start(&opts.db)?;
+        let (map, datums) = {
+            let c = store::open(&opts.db)?;
+            let mut map = MergedMap::default();
+            let mut datums = Datums::default();
+            for d in store::datums(&c)? {
+                datums.rows.insert(d.datum_id.clone(), d);
+            }
+            for (datum_id, _, _, version, data) in store::tiles(&c, None)? {
+                match decode_tile(&data) {
+                    Ok(mut t) => {
+                        t.version = version;
+                        map.restore(&datum_id, t);
+                    }
+                    Err(e) => tracing::warn!("stored tile of {datum_id} unreadable: {e}"),
+                }
+            }
+            (map, datums)
+        };
+        let map = Arc::new(RwLock::new(map));
+        let (events, _) = broadcast::channel(4096);
+        let decode_errors = Arc::new(AtomicU64::new(0));
+        let store_tx = store.sender();
+        let sink_events = events.clone();
+        let sink_store = Mutex::new(store.sender());
+        let merge = MergeWorker::start(
+            map.clone(),
+            Box::new(move |ch: TileChange, enc: Vec<u8>| {
+                let _ = sink_store.lock().unwrap_or_else(|p| p.into_inner()).send(StoreOp::Tile {
+                    datum_id: ch.datum_id.clone(),
+                    tx: ch.index.tx,
+                    ty: ch.index.ty,
+                    version: ch.version,
+                    data: enc,
+                });
+                let _ = sink_events.send(Arc::from(
+                    json!({"type": "tile", "datum_id": ch.datum_id, "tx": ch.index.tx, "ty": ch.index.ty, "version": ch.version})
+                        .to_string(),
+                ));
+            }),
+            decode_errors.clone(),
+        );
+        let session = zenoh::open(opts.zenoh).await.map_err(zerr)?;
+        let start_seq = (now_unix_ms() / 1000) as u32;
+        let inner = Arc::new(Inner {
+            session,
+            fleet: Mutex::new(Fleet::default()),
+            datums: Mutex::new(datums),
+            map,
+            events,
+            decode_errors,
+            db: opts.db.clone(),
+            store_tx: Mutex::new(store_tx),
+            merge_tx: merge.sender(),
+            goal_seq: AtomicU32::new(start_seq),
+            drive_seq: AtomicU32::new(start_seq),
+            reader: Mutex::new(None),
+        });
+        let mut subs: Vec<Box<dyn std::any::Any + Send + Sync>> = Vec::new();
+        let i2 = inner.clone();
+        let rt = tokio::runtime::Handle::current();
+        let sub = inner
+            .session
+            .declare_subscriber(keys::all())
+            .callback(move |sample| {
+                if sample.kind() != SampleKind::Put {
+                    return;
+                }
+                let _g = rt.enter();
+                let key = sample.key_expr().as_str();
+                let payload = sample.payload().to_bytes();
+                i2.on_sample(key, &payload);
+            })
+            .await
+            .map_err(zerr)?;
+        subs.push(Box::new(sub));
+        let i3 = inner.clone();
+        let rt = tokio::runtime::Handle::current();
+        let live = inner
+            .session
+            .liveliness()
+            .declare_subscriber(keys::all_alive())
+            .history(true)
+            .callback(move |sample| {
+                let _g = rt.enter();
+                i3.on_liveliness(sample.key_expr().as_str(), sample.kind() == SampleKind::Put);
+            })
+            .await
+            .map_err(zerr)?;
+        subs.push(Box::new(live));
+        Ok(Station {
+            inner,
+            merge: Some(merge),
+            store: Some(store),
+            _subs: subs,
+        })
+    }
+
+    /// Closes Zenoh, then drains the merge and store queues.
+    pub async fn stop(mut self) {
+        self._subs.clear();
+        let _ = self.inner.session.close().await;
+        let merge = self.merge.take();
+        let store = self.store.take();
+        let _ = tokio::task::spawn_blocking(move || {
+            if let Some(m) = merge {
+                m.finish();
+            }
+            if let Some(s) = store {
+                s.finish();
+            }
+        })
+        .await;
+    }
+}
+
+/// The lattice of a datum, from the store rows.
+pub fn datum_lattice(row: &DatumRow) -> Lattice {
+    Lattice {
+        cell_size_m: row.cell_size_m,
+        tile_cells: row.tile_cells,
+    }
+}

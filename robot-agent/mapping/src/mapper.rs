@@ -1,0 +1,971 @@
+//! The incremental traversability mapper: evidence per lattice cell, dirty-cell reclassification,
+//! inflation, proprioception, negative obstacles, and changed tiles out.
+
+use crate::classify::{CellStats, Class, Neighbourhood, Rules};
+use crate::config::Config;
+use crate::filters;
+use common::grid::{Cell, CellState, Lattice, Tile, TileIndex};
+use nalgebra::Isometry3;
+use sensing::{Point, Scan};
+use std::collections::{HashMap, HashSet};
+use std::hash::{BuildHasherDefault, Hasher};
+
+/// Why an update was refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum MapError {
+    /// The robot pose or the time is not finite.
+    #[error("robot pose or time is not finite")]
+    BadPose,
+    /// Time went backwards.
+    #[error("time {t_s} s is before the previous update ({previous_s} s)")]
+    TimeWentBack {
+        /// This update.
+        t_s: f64,
+        /// The previous update.
+        previous_s: f64,
+    },
+    /// The configuration is invalid.
+    #[error(transparent)]
+    Config(#[from] crate::config::ConfigError),
+}
+
+/// Where the robot is: the map-frame position of the ground under its centre, and its heading.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct RobotPose {
+    /// x, metres, map frame.
+    pub x_m: f64,
+    /// y, metres, map frame.
+    pub y_m: f64,
+    /// Height of the ground under the robot, metres, map frame.
+    pub z_m: f64,
+    /// Heading, radians (x axis of base_link from the map x axis).
+    pub yaw_rad: f64,
+}
+
+impl RobotPose {
+    /// The robot under a sensor mounted `sensor_height_m` above the ground on the robot's up axis.
+    pub fn from_sensor_pose(pose_map_sensor: &Isometry3<f64>, sensor_height_m: f64) -> Self {
+        let up = pose_map_sensor.rotation * nalgebra::Vector3::z();
+        let ground = pose_map_sensor.translation.vector - up * sensor_height_m;
+        let fwd = pose_map_sensor.rotation * nalgebra::Vector3::x();
+        Self { x_m: ground.x, y_m: ground.y, z_m: ground.z, yaw_rad: fwd.y.atan2(fwd.x) }
+    }
+
+    fn is_finite(&self) -> bool {
+        self.x_m.is_finite() && self.y_m.is_finite() && self.z_m.is_finite() && self.yaw_rad.is_finite()
+    }
+}
+
+/// How an update's points relate to the evidence already held.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Evidence {
+    /// One sweep: its points add to the cells' evidence of the current epoch.
+    Scan,
+    /// The whole (SLAM) map around the robot: each cell's points replace what the cell held; a
+    /// cell whose points did not change is not touched.
+    MapCloud,
+}
+
+/// What one update did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct UpdateReport {
+    /// Tiles whose content changed (and whose rate limit allowed publishing), sorted by index,
+    /// each with its version already increased.
+    pub tiles: Vec<Tile>,
+    /// Points received.
+    pub points_in: usize,
+    /// Points dropped: not finite.
+    pub dropped_non_finite: usize,
+    /// Points dropped by the height filter (above the climb cone or out of range).
+    pub dropped_height: usize,
+    /// Points dropped by the isolated-point filter.
+    pub dropped_isolated: usize,
+    /// Points above their cell's ceiling `h_max2`.
+    pub dropped_ceiling: usize,
+    /// Points held back as possible stray dynamic points (waiting for a second scan).
+    pub held_stray: usize,
+    /// Cells whose evidence changed.
+    pub dirty_cells: usize,
+    /// Cells reclassified.
+    pub classified_cells: usize,
+    /// Cells whose class changed.
+    pub class_changes: usize,
+}
+
+/// The planner's view: a window of final cells around the robot, row-major, row 0 southmost.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlannerView {
+    /// The lattice.
+    pub lattice: Lattice,
+    /// Global lattice column of the window's cell (0, 0).
+    pub min_cx: i64,
+    /// Global lattice row of the window's cell (0, 0).
+    pub min_cy: i64,
+    /// Cells per row.
+    pub width: u32,
+    /// Rows.
+    pub height: u32,
+    /// `width * height` cells (state, cost, height, evidence).
+    pub cells: Vec<Cell>,
+}
+
+impl PlannerView {
+    /// The cell at a global lattice index; unknown outside the window.
+    pub fn get(&self, cx: i64, cy: i64) -> Cell {
+        let (x, y) = (cx - self.min_cx, cy - self.min_cy);
+        if x < 0 || y < 0 || x >= i64::from(self.width) || y >= i64::from(self.height) {
+            return Cell::UNKNOWN;
+        }
+        self.cells[y as usize * self.width as usize + x as usize]
+    }
+}
+
+/// Multiplicative hash for small integer keys (deterministic, no per-process seed).
+#[derive(Default, Clone, Copy)]
+struct FxHasher(u64);
+
+impl Hasher for FxHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for b in bytes {
+            self.write_u64(u64::from(*b));
+        }
+    }
+    fn write_u64(&mut self, v: u64) {
+        self.0 = (self.0.rotate_left(5) ^ v).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    }
+    fn write_i32(&mut self, v: i32) {
+        self.write_u64(v as u32 as u64);
+    }
+    fn write_i64(&mut self, v: i64) {
+        self.write_u64(v as u64);
+    }
+}
+
+type FastMap<K, V> = HashMap<K, V, BuildHasherDefault<FxHasher>>;
+type FastSet<K> = HashSet<K, BuildHasherDefault<FxHasher>>;
+
+/// Running height moments.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Moments {
+    n: u32,
+    sz: f64,
+    szz: f64,
+    /// Highest point; a riser's points pull a cell's mean halfway down the step, its top does not.
+    zmax: f32,
+}
+
+impl Default for Moments {
+    fn default() -> Self {
+        Self { n: 0, sz: 0.0, szz: 0.0, zmax: f32::NEG_INFINITY }
+    }
+}
+
+impl Moments {
+    fn add(&mut self, z: f64) {
+        self.n += 1;
+        self.sz += z;
+        self.szz += z * z;
+        self.zmax = self.zmax.max(z as f32);
+    }
+    fn merged(&self, o: &Moments) -> Moments {
+        Moments { n: self.n + o.n, sz: self.sz + o.sz, szz: self.szz + o.szz, zmax: self.zmax.max(o.zmax) }
+    }
+    fn stats(&self) -> CellStats {
+        if self.n == 0 {
+            return CellStats::default();
+        }
+        let n = f64::from(self.n);
+        let mean = self.sz / n;
+        CellStats { n: self.n, mean_m: mean, var_m2: (self.szz / n - mean * mean).max(0.0), max_m: f64::from(self.zmax) }
+    }
+}
+
+/// Everything the mapper keeps about one lattice cell.
+#[derive(Clone, Copy, Debug, Default)]
+struct CellData {
+    /// Evidence of the newest epoch with observations, and of the one before.
+    cur: Moments,
+    prev: Moments,
+    epoch: i64,
+    /// Points far above the cell's ground seen in one scan only, waiting for confirmation.
+    pending: Moments,
+    pending_scan: u32,
+    /// MapCloud mode: the moments last received, to tell unchanged cells.
+    last_cloud: Moments,
+    hits: u8,
+    last_scan: u32,
+    stamp_s: u32,
+    /// The robot's footprint covered this cell (proprioception), at this ground height.
+    driven: bool,
+    driven_z: f32,
+    class: Class,
+}
+
+impl CellData {
+    fn evidence(&self) -> Moments {
+        self.cur.merged(&self.prev)
+    }
+}
+
+struct TileSlot {
+    index: TileIndex,
+    data: Vec<CellData>,
+    /// The current output cells.
+    live: Vec<Cell>,
+    /// The last published tile (version and cells).
+    published: Tile,
+    changed: bool,
+    last_publish_s: f64,
+}
+
+/// Scratch arrays over a square window of cells around the robot, reused between updates.
+struct Window {
+    half: i64,
+    side: usize,
+    cx0: i64,
+    cy0: i64,
+    zmin: Vec<f32>,
+    ceiling: Vec<f32>,
+    low: Vec<Moments>,
+    high: Vec<Moments>,
+    touched: Vec<usize>,
+    mark: Vec<u32>,
+    generation: u32,
+}
+
+impl Window {
+    fn new(half: i64) -> Self {
+        let side = (2 * half + 1) as usize;
+        let n = side * side;
+        Self {
+            half,
+            side,
+            cx0: 0,
+            cy0: 0,
+            zmin: vec![f32::INFINITY; n],
+            ceiling: vec![f32::INFINITY; n],
+            low: vec![Moments::default(); n],
+            high: vec![Moments::default(); n],
+            touched: Vec::new(),
+            mark: vec![0; n],
+            generation: 0,
+        }
+    }
+    fn local(&self, cx: i64, cy: i64) -> Option<usize> {
+        let (x, y) = (cx - self.cx0 + self.half, cy - self.cy0 + self.half);
+        (x >= 0 && y >= 0 && (x as usize) < self.side && (y as usize) < self.side).then(|| y as usize * self.side + x as usize)
+    }
+    fn global(&self, i: usize) -> (i64, i64) {
+        ((i % self.side) as i64 - self.half + self.cx0, (i / self.side) as i64 - self.half + self.cy0)
+    }
+    fn clear(&mut self) {
+        for &i in &self.touched {
+            self.zmin[i] = f32::INFINITY;
+            self.ceiling[i] = f32::INFINITY;
+            self.low[i] = Moments::default();
+            self.high[i] = Moments::default();
+        }
+        self.touched.clear();
+    }
+    /// Starts a new de-duplication generation for `mark`.
+    fn next_generation(&mut self) -> u32 {
+        self.generation = self.generation.wrapping_add(1);
+        if self.generation == 0 {
+            self.mark.iter_mut().for_each(|m| *m = 0);
+            self.generation = 1;
+        }
+        self.generation
+    }
+}
+
+/// The traversability mapper. Feed it scans or map clouds with the robot pose and a time; it
+/// returns the tiles that changed and keeps the grid for the planner.
+pub struct Mapper {
+    cfg: Config,
+    rules: Rules,
+    lattice: Lattice,
+    slot_of: FastMap<TileIndex, usize>,
+    slots: Vec<TileSlot>,
+    /// Cells with new evidence that were outside the processing distance when it arrived.
+    pending: FastSet<(i64, i64)>,
+    win: Window,
+    scan_id: u32,
+    robot: Option<RobotPose>,
+    last_t_s: Option<f64>,
+    /// Sorted (distance, dx, dy) offsets within the cost distance, for inflation.
+    offsets: Vec<(f64, i64, i64)>,
+    /// Reclassify every cell of the window on every update (the baseline the incremental
+    /// path is measured and tested against).
+    full: bool,
+}
+
+/// Tiles are republished at most this often (architecture.md: at most 2 Hz per tile).
+const TILE_MIN_INTERVAL_S: f64 = 0.5;
+/// The published height only follows the live one when it moved this much: sensor noise on a
+/// cell mean must not republish a tile every scan.
+const HEIGHT_HYSTERESIS_CM: i16 = 3;
+
+impl Mapper {
+    /// A mapper with an empty grid.
+    pub fn new(cfg: Config) -> Result<Self, MapError> {
+        cfg.validate()?;
+        let l = cfg.grid_size_m;
+        let range_cells = (cfg.max_range_m / l).ceil() as i64;
+        let view_half = i64::from(cfg.num_of_grid_cells / 2);
+        let half = range_cells.max(view_half) + i64::from(cfg.ceiling_radius_cells) + 8;
+        let rc = (cfg.cost_distance_m / l).ceil() as i64;
+        let mut offsets = Vec::new();
+        for dy in -rc..=rc {
+            for dx in -rc..=rc {
+                let d = (dx as f64).hypot(dy as f64) * l;
+                if d <= cfg.cost_distance_m + 1e-9 {
+                    offsets.push((d, dx, dy));
+                }
+            }
+        }
+        offsets.sort_by(|a, b| a.0.total_cmp(&b.0).then((a.1, a.2).cmp(&(b.1, b.2))));
+        Ok(Self {
+            rules: Rules::new(&cfg),
+            lattice: cfg.lattice(),
+            cfg,
+            slot_of: FastMap::default(),
+            slots: Vec::new(),
+            pending: FastSet::default(),
+            win: Window::new(half),
+            scan_id: 0,
+            robot: None,
+            last_t_s: None,
+            offsets,
+            full: false,
+        })
+    }
+
+    /// Switches to reclassifying the whole window on every update (slow; the baseline).
+    pub fn set_full_reclassification(&mut self, on: bool) {
+        self.full = on;
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &Config {
+        &self.cfg
+    }
+
+    /// The lattice the cells live on.
+    pub fn lattice(&self) -> Lattice {
+        self.lattice
+    }
+
+    /// The last robot pose given.
+    pub fn robot(&self) -> Option<RobotPose> {
+        self.robot
+    }
+
+    /// One LiDAR scan (sensor frame) with the sensor's map pose.
+    pub fn update_scan(&mut self, scan: &Scan, pose_map_sensor: &Isometry3<f64>, robot: &RobotPose, t_s: f64) -> Result<UpdateReport, MapError> {
+        let m = pose_map_sensor.to_homogeneous().cast::<f32>();
+        let pts: Vec<[f32; 3]> = scan
+            .points
+            .iter()
+            .map(|p| {
+                let v = m * nalgebra::Vector4::new(p.x, p.y, p.z, 1.0);
+                [v.x, v.y, v.z]
+            })
+            .collect();
+        self.update_points(pts, robot, t_s, Evidence::Scan)
+    }
+
+    /// The map cloud around the robot (map frame), e.g. from SLAM.
+    pub fn update_cloud(&mut self, cloud_map: &[Point], robot: &RobotPose, t_s: f64) -> Result<UpdateReport, MapError> {
+        let pts = cloud_map.iter().map(|p| [p.x, p.y, p.z]).collect();
+        self.update_points(pts, robot, t_s, Evidence::MapCloud)
+    }
+
+    /// The core step: map-frame points, the robot, the time, and how to treat the points.
+    pub fn update_points(&mut self, mut pts: Vec<[f32; 3]>, robot: &RobotPose, t_s: f64, kind: Evidence) -> Result<UpdateReport, MapError> {
+        if !robot.is_finite() || !t_s.is_finite() {
+            return Err(MapError::BadPose);
+        }
+        if let Some(prev) = self.last_t_s {
+            if t_s < prev {
+                return Err(MapError::TimeWentBack { t_s, previous_s: prev });
+            }
+        }
+        self.last_t_s = Some(t_s);
+        self.robot = Some(*robot);
+        self.scan_id = self.scan_id.wrapping_add(1);
+        let mut rep = UpdateReport { points_in: pts.len(), ..Default::default() };
+        let before = pts.len();
+        pts.retain(|p| p.iter().all(|v| v.is_finite()));
+        rep.dropped_non_finite = before - pts.len();
+
+        // 1-2. Height filter around the robot, isolated points.
+        rep.dropped_height = filters::height_filter(&mut pts, [robot.x_m, robot.y_m, robot.z_m], self.cfg.h_r_m, self.cfg.phi_max_deg.to_radians(), self.cfg.max_range_m);
+        rep.dropped_isolated = filters::isolated_point_filter(&mut pts, &self.cfg.isolated_pairs);
+
+        // 3. Binning with the per-cell ceiling, into the scratch window.
+        let (rcx, rcy) = self.lattice.cell_of(robot.x_m, robot.y_m);
+        self.win.clear();
+        self.win.cx0 = rcx;
+        self.win.cy0 = rcy;
+        let mut cells_of = Vec::with_capacity(pts.len());
+        for p in &pts {
+            let (cx, cy) = self.lattice.cell_of(f64::from(p[0]), f64::from(p[1]));
+            let li = self.win.local(cx, cy);
+            cells_of.push(li);
+            if let Some(i) = li {
+                if self.win.zmin[i] == f32::INFINITY {
+                    self.win.touched.push(i);
+                }
+                self.win.zmin[i] = self.win.zmin[i].min(p[2]);
+            }
+        }
+        self.win.touched.sort_unstable();
+        self.compute_ceilings();
+        let stray_on = kind == Evidence::Scan && self.cfg.stray_height_m > 0.0;
+        // The ground reference for stray points: the lowest point in the cell this scan, or the
+        // ground the cell already showed, whichever is lower.
+        let mut ref_z: FastMap<usize, f32> = FastMap::default();
+        if stray_on {
+            for &i in &self.win.touched {
+                let (cx, cy) = self.win.global(i);
+                let mut r = self.win.zmin[i];
+                if let Some(d) = self.data(cx, cy) {
+                    let e = d.evidence().stats();
+                    if e.n >= self.rules.min_points() {
+                        r = r.min(e.mean_m as f32);
+                    }
+                }
+                ref_z.insert(i, r);
+            }
+        }
+        for (p, li) in pts.iter().zip(&cells_of) {
+            let Some(i) = *li else { continue };
+            if p[2] > self.win.ceiling[i] {
+                rep.dropped_ceiling += 1;
+                continue;
+            }
+            let high = stray_on && ref_z.get(&i).is_some_and(|r| p[2] > r + self.cfg.stray_height_m as f32);
+            if high {
+                self.win.high[i].add(f64::from(p[2]));
+            } else {
+                self.win.low[i].add(f64::from(p[2]));
+            }
+        }
+
+        // Merge into the cells' evidence; collect dirty cells.
+        let epoch = (t_s / self.cfg.evidence_epoch_s).floor() as i64;
+        let stamp = t_s.max(0.0).min(f64::from(u32::MAX)) as u32;
+        let scan = self.scan_id;
+        let touched = std::mem::take(&mut self.win.touched);
+        let mut dirty = Vec::with_capacity(touched.len());
+        for &i in &touched {
+            let (low, high) = (self.win.low[i], self.win.high[i]);
+            if low.n == 0 && high.n == 0 {
+                continue;
+            }
+            let (cx, cy) = self.win.global(i);
+            let d = self.data_mut(cx, cy);
+            let changed = match kind {
+                Evidence::MapCloud => {
+                    let m = low.merged(&high);
+                    if m == d.last_cloud {
+                        false
+                    } else {
+                        d.last_cloud = m;
+                        d.cur = m;
+                        d.prev = Moments::default();
+                        true
+                    }
+                }
+                Evidence::Scan => {
+                    let mut add = low;
+                    if high.n > 0 {
+                        if d.pending.n > 0 && d.pending_scan != scan {
+                            // Seen again in a later scan: not a stray point.
+                            add = add.merged(&d.pending).merged(&high);
+                            d.pending = Moments::default();
+                        } else {
+                            d.pending = high;
+                            d.pending_scan = scan;
+                            rep.held_stray += high.n as usize;
+                        }
+                    } else {
+                        d.pending = Moments::default();
+                    }
+                    if add.n > 0 {
+                        if epoch > d.epoch || d.cur.n == 0 {
+                            d.prev = d.cur;
+                            d.cur = Moments::default();
+                            d.epoch = epoch;
+                        }
+                        d.cur = d.cur.merged(&add);
+                    }
+                    add.n > 0
+                }
+            };
+            if d.last_scan != scan {
+                d.last_scan = scan;
+                d.hits = d.hits.saturating_add(1);
+            }
+            d.stamp_s = stamp;
+            if changed {
+                dirty.push((cx, cy));
+            }
+        }
+        self.win.touched = touched;
+        rep.dirty_cells = dirty.len();
+
+        // 6a. Proprioception: the footprint is traversable ground at the robot's height.
+        for (cx, cy) in self.footprint_cells(robot) {
+            let d = self.data_mut(cx, cy);
+            if !d.driven || (d.driven_z - robot.z_m as f32).abs() > 0.01 {
+                d.driven = true;
+                d.driven_z = robot.z_m as f32;
+                d.stamp_s = stamp;
+                dirty.push((cx, cy));
+            }
+        }
+
+        self.reclassify(dirty, robot, &mut rep);
+        rep.tiles = self.take_tiles(t_s, false);
+        Ok(rep)
+    }
+
+    /// Reclassifies every cell of the window from the stored evidence (the full baseline).
+    pub fn reclassify_all(&mut self) -> UpdateReport {
+        let mut rep = UpdateReport::default();
+        let Some(robot) = self.robot else { return rep };
+        self.reclassify(Vec::new(), &robot, &mut rep);
+        rep
+    }
+
+    /// Publishes every changed tile now, ignoring the rate limit.
+    pub fn flush_tiles(&mut self, t_s: f64) -> Vec<Tile> {
+        self.take_tiles(t_s, true)
+    }
+
+    fn compute_ceilings(&mut self) {
+        let r = i64::from(self.cfg.ceiling_radius_cells);
+        let tan_phi = self.cfg.phi_max_deg.to_radians().tan() as f32;
+        let l = self.cfg.grid_size_m as f32;
+        let h_r = self.cfg.h_r_m as f32;
+        let side = self.win.side as i64;
+        for k in 0..self.win.touched.len() {
+            let i = self.win.touched[k];
+            let (x, y) = ((i as i64) % side, (i as i64) / side);
+            let mut best = f32::INFINITY;
+            for dy in -r..=r {
+                let yy = y + dy;
+                if yy < 0 || yy >= side {
+                    continue;
+                }
+                for dx in -r..=r {
+                    let xx = x + dx;
+                    if xx < 0 || xx >= side {
+                        continue;
+                    }
+                    let z = self.win.zmin[(yy * side + xx) as usize];
+                    if z.is_finite() {
+                        best = best.min(z + tan_phi * l * ((dx * dx + dy * dy) as f32).sqrt());
+                    }
+                }
+            }
+            self.win.ceiling[i] = best + h_r;
+        }
+    }
+
+    fn footprint_cells(&self, robot: &RobotPose) -> Vec<(i64, i64)> {
+        let (hl, hw) = (self.cfg.footprint_length_m / 2.0, self.cfg.footprint_width_m / 2.0);
+        if hl <= 0.0 || hw <= 0.0 {
+            return Vec::new();
+        }
+        let (c, s) = (robot.yaw_rad.cos(), robot.yaw_rad.sin());
+        let rad = hl.hypot(hw);
+        let (x0, y0) = self.lattice.cell_of(robot.x_m - rad, robot.y_m - rad);
+        let (x1, y1) = self.lattice.cell_of(robot.x_m + rad, robot.y_m + rad);
+        let mut out = Vec::new();
+        for cy in y0..=y1 {
+            for cx in x0..=x1 {
+                let (px, py) = self.lattice.cell_center_m(cx, cy);
+                let (dx, dy) = (px - robot.x_m, py - robot.y_m);
+                let (u, v) = (c * dx + s * dy, -s * dx + c * dy);
+                if u.abs() <= hl && v.abs() <= hw {
+                    out.push((cx, cy));
+                }
+            }
+        }
+        out
+    }
+
+    /// Steps 4-6: classify the cells around `dirty` (or the whole window in full mode), find
+    /// negative obstacles, and refresh inflation and costs where classes changed.
+    fn reclassify(&mut self, dirty: Vec<(i64, i64)>, robot: &RobotPose, rep: &mut UpdateReport) {
+        let (rcx, rcy) = self.lattice.cell_of(robot.x_m, robot.y_m);
+        self.win.cx0 = rcx;
+        self.win.cy0 = rcy;
+        let l = self.cfg.grid_size_m;
+        let pd_cells = self.cfg.processing_distance_m / l;
+        let within = |cx: i64, cy: i64| ((cx - rcx) as f64).hypot((cy - rcy) as f64) <= pd_cells;
+
+        // The cells to classify: dirty ones dilated by the 5x5 rule neighbourhood.
+        let mut todo: Vec<(i64, i64)> = Vec::new();
+        let g = self.win.next_generation();
+        if self.full {
+            let h = i64::from(self.cfg.num_of_grid_cells / 2);
+            for cy in rcy - h..rcy + h {
+                for cx in rcx - h..rcx + h {
+                    if self.data(cx, cy).is_some() {
+                        todo.push((cx, cy));
+                    }
+                }
+            }
+        } else {
+            let add = |win: &mut Window, cx: i64, cy: i64, todo: &mut Vec<(i64, i64)>, pending: &mut FastSet<(i64, i64)>| {
+                if let Some(i) = win.local(cx, cy) {
+                    if win.mark[i] != g {
+                        win.mark[i] = g;
+                        todo.push((cx, cy));
+                    }
+                } else {
+                    pending.insert((cx, cy));
+                }
+            };
+            for &(cx, cy) in &dirty {
+                for dy in -2..=2 {
+                    for dx in -2..=2 {
+                        add(&mut self.win, cx + dx, cy + dy, &mut todo, &mut self.pending);
+                    }
+                }
+            }
+            // Cells that got evidence while far away and are now within reach.
+            let mut now: Vec<(i64, i64)> = self.pending.iter().copied().filter(|&(cx, cy)| within(cx, cy)).collect();
+            now.sort_unstable();
+            for (cx, cy) in now {
+                self.pending.remove(&(cx, cy));
+                add(&mut self.win, cx, cy, &mut todo, &mut self.pending);
+            }
+        }
+
+        // Classification (step 4). Collect the cells whose class changed.
+        let mut changed: Vec<(i64, i64)> = Vec::new();
+        let mut refreshed: Vec<(i64, i64)> = Vec::new();
+        for &(cx, cy) in &todo {
+            if !within(cx, cy) {
+                if !self.full && self.data(cx, cy).is_some() {
+                    self.pending.insert((cx, cy));
+                }
+                continue;
+            }
+            let Some(d) = self.data(cx, cy) else { continue };
+            let old = d.class;
+            let new = if d.driven {
+                Class::Traversable
+            } else {
+                let nb = self.neighbourhood(cx, cy);
+                let v = self.rules.classify(&nb).class();
+                // A negative obstacle stays one until the cell is actually observed.
+                if v == Class::Unknown && old == Class::NegativeObstacle {
+                    old
+                } else {
+                    v
+                }
+            };
+            rep.classified_cells += 1;
+            refreshed.push((cx, cy));
+            if new != old {
+                self.data_mut(cx, cy).class = new;
+                changed.push((cx, cy));
+            }
+        }
+
+        // Negative obstacles (step 6b).
+        changed.extend(self.negative_obstacles(robot));
+        rep.class_changes = changed.len();
+
+        // Inflation and costs (step 5), around cells whose class changed.
+        let g = self.win.next_generation();
+        let rc = (self.cfg.cost_distance_m / l).ceil() as i64;
+        let mut out_cells: Vec<(i64, i64)> = Vec::new();
+        let mark = |win: &mut Window, cx: i64, cy: i64, out: &mut Vec<(i64, i64)>| {
+            if let Some(i) = win.local(cx, cy) {
+                if win.mark[i] != g {
+                    win.mark[i] = g;
+                    out.push((cx, cy));
+                }
+            }
+        };
+        if self.full {
+            let h = i64::from(self.cfg.num_of_grid_cells / 2);
+            for cy in rcy - h..rcy + h {
+                for cx in rcx - h..rcx + h {
+                    if self.data(cx, cy).is_some() {
+                        mark(&mut self.win, cx, cy, &mut out_cells);
+                    }
+                }
+            }
+        } else {
+            for &(cx, cy) in &changed {
+                for dy in -rc..=rc {
+                    for dx in -rc..=rc {
+                        if self.data(cx + dx, cy + dy).is_some() {
+                            mark(&mut self.win, cx + dx, cy + dy, &mut out_cells);
+                        }
+                    }
+                }
+            }
+            for &(cx, cy) in &refreshed {
+                mark(&mut self.win, cx, cy, &mut out_cells);
+            }
+        }
+        for (cx, cy) in out_cells {
+            let cell = self.output_cell(cx, cy);
+            self.write_live(cx, cy, cell);
+        }
+    }
+
+    fn is_source(&self, c: Class) -> bool {
+        c.is_obstacle() || (self.cfg.inflate_undecided && c == Class::Undecided)
+    }
+
+    /// The final cell: state and cost from the class and the nearest inflation source.
+    fn output_cell(&self, cx: i64, cy: i64) -> Cell {
+        let Some(d) = self.data(cx, cy) else { return Cell::UNKNOWN };
+        let ev = d.evidence().stats();
+        let height_m = if d.driven && ev.n < self.rules.min_points() { f64::from(d.driven_z) } else { ev.mean_m };
+        let height_cm = (height_m * 100.0).round().clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16;
+        let (state, cost) = match d.class {
+            Class::Unknown | Class::Undecided => return Cell::UNKNOWN,
+            Class::Obstacle | Class::NegativeObstacle => (CellState::Obstacle, 255),
+            Class::Traversable => {
+                let near = self.offsets.iter().find(|(_, dx, dy)| self.data(cx + dx, cy + dy).is_some_and(|n| self.is_source(n.class)));
+                match near {
+                    Some((dist, _, _)) if *dist <= self.cfg.obstacle_distance_m + 1e-9 => (CellState::Inflated, 254),
+                    Some((dist, _, _)) => {
+                        let c = f64::from(self.cfg.cost_max) * (-(dist - self.cfg.obstacle_distance_m) / self.cfg.cost_decay_m).exp();
+                        (CellState::Traversable, c.round() as u8)
+                    }
+                    None => (CellState::Traversable, 0),
+                }
+            }
+        };
+        let height_cm = if d.class == Class::NegativeObstacle && ev.n == 0 { 0 } else { height_cm };
+        Cell { state, cost, height_cm, hits: d.hits.max(1), stamp_s: d.stamp_s }
+    }
+
+    fn write_live(&mut self, cx: i64, cy: i64, cell: Cell) {
+        let (t, (c, r)) = self.lattice.tile_of_cell(cx, cy);
+        let Some(&s) = self.slot_of.get(&t) else { return };
+        let n = self.lattice.tile_cells as usize;
+        let k = r as usize * n + c as usize;
+        let slot = &mut self.slots[s];
+        slot.live[k] = cell;
+        let p = &slot.published.cells[k];
+        if p.state != cell.state || p.cost != cell.cost || (p.height_cm.wrapping_sub(cell.height_cm)).abs() >= HEIGHT_HYSTERESIS_CM {
+            slot.changed = true;
+        }
+    }
+
+    fn take_tiles(&mut self, t_s: f64, force: bool) -> Vec<Tile> {
+        let mut out = Vec::new();
+        for slot in &mut self.slots {
+            if slot.changed && (force || t_s - slot.last_publish_s >= TILE_MIN_INTERVAL_S || slot.published.version == 0) {
+                slot.changed = false;
+                slot.last_publish_s = t_s;
+                slot.published.version += 1;
+                // Cells whose change was below the hysteresis keep their published height so the
+                // next comparison is against what consumers hold.
+                slot.published.cells.clone_from(&slot.live);
+                out.push(slot.published.clone());
+            }
+        }
+        out.sort_by_key(|t| t.index);
+        out
+    }
+
+    /// Unknown cells in reach of the sensor whose neighbour towards the robot is observed
+    /// ground and beyond which the surface is missing or much lower: a drop-off, hole or
+    /// platform edge. Returns the cells whose class changed.
+    fn negative_obstacles(&mut self, robot: &RobotPose) -> Vec<(i64, i64)> {
+        let l = self.cfg.grid_size_m;
+        let r_min = self.cfg.blind_radius_m() + l;
+        let r_max = self.cfg.negative_obstacle_distance_m;
+        if r_max <= r_min {
+            return Vec::new();
+        }
+        let tan_phi = self.cfg.phi_max_deg.to_radians().tan();
+        let drop_m = self.cfg.max_step_m.max(self.cfg.h_max_m()) * 2.0;
+        let beyond_cells = (3.0 / l).ceil() as i64;
+        let (x0, y0) = self.lattice.cell_of(robot.x_m - r_max, robot.y_m - r_max);
+        let (x1, y1) = self.lattice.cell_of(robot.x_m + r_max, robot.y_m + r_max);
+        let mut changed = Vec::new();
+        for cy in y0..=y1 {
+            for cx in x0..=x1 {
+                let (px, py) = self.lattice.cell_center_m(cx, cy);
+                let (dx, dy) = (px - robot.x_m, py - robot.y_m);
+                let dist = dx.hypot(dy);
+                if dist < r_min || dist > r_max {
+                    continue;
+                }
+                let old = self.data(cx, cy).map(|d| d.class).unwrap_or_default();
+                if old != Class::Unknown && old != Class::NegativeObstacle {
+                    continue;
+                }
+                if self.data(cx, cy).is_some_and(|d| d.evidence().n > 0 || d.driven) {
+                    continue;
+                }
+                let (ux, uy) = (dx / dist, dy / dist);
+                // The cell one step towards the robot must be observed, drivable ground.
+                let (bx, by) = self.lattice.cell_of(px - ux * l, py - uy * l);
+                let Some(edge) = self.data(bx, by).filter(|d| d.class == Class::Traversable) else {
+                    continue;
+                };
+                let h_edge = if edge.evidence().n > 0 { edge.evidence().stats().mean_m } else { f64::from(edge.driven_z) };
+                // Walk outwards: the first observed cell beyond tells whether the surface continues.
+                let mut drop = true;
+                for k in 1..=beyond_cells {
+                    let (qx, qy) = self.lattice.cell_of(px + ux * l * k as f64, py + uy * l * k as f64);
+                    if let Some(q) = self.data(qx, qy).filter(|q| q.evidence().n >= self.rules.min_points()) {
+                        let h_q = q.evidence().stats().mean_m;
+                        drop = h_q < h_edge - drop_m - l * (k + 1) as f64 * tan_phi;
+                        break;
+                    }
+                }
+                let new = if drop { Class::NegativeObstacle } else { Class::Unknown };
+                if new != old {
+                    self.data_mut(cx, cy).class = new;
+                    changed.push((cx, cy));
+                }
+            }
+        }
+        changed
+    }
+
+    fn neighbourhood(&self, cx: i64, cy: i64) -> Neighbourhood {
+        let mut nb = Neighbourhood::default();
+        let min = self.rules.min_points();
+        for (y, row) in nb.iter_mut().enumerate() {
+            for (x, s) in row.iter_mut().enumerate() {
+                if let Some(d) = self.data(cx + x as i64 - 2, cy + y as i64 - 2) {
+                    let st = d.evidence().stats();
+                    if st.n >= min {
+                        *s = st;
+                    } else if d.driven {
+                        *s = CellStats { n: min, mean_m: f64::from(d.driven_z), var_m2: 0.0, max_m: f64::from(d.driven_z) };
+                    } else {
+                        s.n = st.n;
+                    }
+                }
+            }
+        }
+        nb
+    }
+
+    fn data(&self, cx: i64, cy: i64) -> Option<&CellData> {
+        let (t, (c, r)) = self.lattice.tile_of_cell(cx, cy);
+        let s = *self.slot_of.get(&t)?;
+        Some(&self.slots[s].data[r as usize * self.lattice.tile_cells as usize + c as usize])
+    }
+
+    fn data_mut(&mut self, cx: i64, cy: i64) -> &mut CellData {
+        let (t, (c, r)) = self.lattice.tile_of_cell(cx, cy);
+        let n = self.lattice.tile_cells as usize;
+        let s = match self.slot_of.get(&t) {
+            Some(&s) => s,
+            None => {
+                self.slots.push(TileSlot {
+                    index: t,
+                    data: vec![CellData::default(); n * n],
+                    live: vec![Cell::UNKNOWN; n * n],
+                    published: Tile::new(t, self.lattice),
+                    changed: false,
+                    last_publish_s: f64::NEG_INFINITY,
+                });
+                self.slot_of.insert(t, self.slots.len() - 1);
+                self.slots.len() - 1
+            }
+        };
+        &mut self.slots[s].data[r as usize * n + c as usize]
+    }
+
+    /// The final cell (after inflation) at a global lattice index.
+    pub fn cell(&self, cx: i64, cy: i64) -> Cell {
+        let (t, (c, r)) = self.lattice.tile_of_cell(cx, cy);
+        match self.slot_of.get(&t) {
+            Some(&s) => self.slots[s].live[r as usize * self.lattice.tile_cells as usize + c as usize],
+            None => Cell::UNKNOWN,
+        }
+    }
+
+    /// The classification before inflation at a global lattice index (what is evaluated
+    /// against truth labels).
+    pub fn class(&self, cx: i64, cy: i64) -> Class {
+        self.data(cx, cy).map(|d| d.class).unwrap_or_default()
+    }
+
+    /// The mean height of a cell's evidence (or the driven height), if any.
+    pub fn height_m(&self, cx: i64, cy: i64) -> Option<f64> {
+        let d = self.data(cx, cy)?;
+        let e = d.evidence();
+        if e.n > 0 {
+            Some(e.stats().mean_m)
+        } else if d.driven {
+            Some(f64::from(d.driven_z))
+        } else {
+            None
+        }
+    }
+
+    /// The current content of every tile held (live cells, last published version), sorted.
+    pub fn tiles(&self) -> Vec<Tile> {
+        let mut v: Vec<Tile> = self
+            .slots
+            .iter()
+            .map(|s| Tile { index: s.index, lattice: self.lattice, version: s.published.version, cells: s.live.clone() })
+            .collect();
+        v.sort_by_key(|t| t.index);
+        v
+    }
+
+    /// The planner's window (`num_of_grid_cells` square) centred on the last robot pose.
+    pub fn planner_view(&self) -> PlannerView {
+        let w = self.cfg.num_of_grid_cells;
+        let r = self.robot.unwrap_or_default();
+        let (cx, cy) = self.lattice.cell_of(r.x_m, r.y_m);
+        self.view(cx - i64::from(w / 2), cy - i64::from(w / 2), w, w)
+    }
+
+    /// Any window of final cells.
+    pub fn view(&self, min_cx: i64, min_cy: i64, width: u32, height: u32) -> PlannerView {
+        let mut cells = Vec::with_capacity(width as usize * height as usize);
+        for y in 0..i64::from(height) {
+            for x in 0..i64::from(width) {
+                cells.push(self.cell(min_cx + x, min_cy + y));
+            }
+        }
+        PlannerView { lattice: self.lattice, min_cx, min_cy, width, height, cells }
+    }
+
+    /// Global cell index bounds (min, max inclusive) of all tiles held, if any.
+    pub fn bounds(&self) -> Option<((i64, i64), (i64, i64))> {
+        let n = i64::from(self.lattice.tile_cells);
+        let mut it = self.slots.iter().map(|s| self.lattice.tile_first_cell(s.index));
+        let first = it.next()?;
+        let (mut lo, mut hi) = (first, first);
+        for (x, y) in it {
+            lo = (lo.0.min(x), lo.1.min(y));
+            hi = (hi.0.max(x), hi.1.max(y));
+        }
+        Some((lo, (hi.0 + n - 1, hi.1 + n - 1)))
+    }
+}
+
+impl Mapper {
+    /// Evidence statistics of one cell (diagnostics).
+    pub fn debug_stats(&self, cx: i64, cy: i64) -> CellStats {
+        self.data(cx, cy).map(|d| d.evidence().stats()).unwrap_or_default()
+    }
+}

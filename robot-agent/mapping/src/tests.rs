@@ -1,0 +1,259 @@
+//! Pipeline tests on synthetic worlds cast with the VLP-16-like model of [`crate::synth`].
+
+use crate::synth::{cast_scan, LidarSpec, Rng};
+use crate::{Class, Config, Evidence, Mapper, RobotPose};
+use common::grid::{decode_tile, encode_tile, CellState, TileIndex};
+use std::collections::BTreeMap;
+
+const SENSOR_H: f64 = 0.7;
+
+fn spec() -> LidarSpec {
+    LidarSpec { az_step_deg: 0.4, max_range_m: 25.0, ..LidarSpec::vlp16() }
+}
+
+/// Drives the robot along `path` (x, y, t) through a time-varying world, one scan per pose.
+fn drive(m: &mut Mapper, world: &dyn Fn(f64, f64, f64) -> f64, path: &[(f64, f64, f64)]) -> Vec<crate::UpdateReport> {
+    let mut rng = Rng::new(7);
+    let mut reps = Vec::new();
+    for w in path.windows(2).map(|w| (w[0], Some(w[1]))).chain(path.last().map(|p| (*p, None))) {
+        let ((x, y, t), next) = w;
+        let yaw = next.map(|(nx, ny, _)| (ny - y).atan2(nx - x)).unwrap_or(0.0);
+        let z = world(x, y, t);
+        let h = |px: f64, py: f64| world(px, py, t);
+        let pts = cast_scan(&h, [x, y, z + SENSOR_H], &spec(), &mut rng);
+        let robot = RobotPose { x_m: x, y_m: y, z_m: z, yaw_rad: yaw };
+        reps.push(m.update_points(pts, &robot, t, Evidence::Scan).unwrap());
+    }
+    reps
+}
+
+fn line(from: (f64, f64), to: (f64, f64), t0: f64, secs: f64) -> Vec<(f64, f64, f64)> {
+    let n = (secs * 10.0).round() as usize;
+    (0..=n)
+        .map(|i| {
+            let f = i as f64 / n as f64;
+            (from.0 + (to.0 - from.0) * f, from.1 + (to.1 - from.1) * f, t0 + i as f64 * 0.1)
+        })
+        .collect()
+}
+
+fn cell_of(m: &Mapper, x: f64, y: f64) -> (i64, i64) {
+    m.lattice().cell_of(x, y)
+}
+
+/// Classes of the cells whose centres lie in the rectangle.
+fn classes_in(m: &Mapper, x0: f64, y0: f64, x1: f64, y1: f64) -> Vec<Class> {
+    let (a, b) = (cell_of(m, x0, y0), cell_of(m, x1, y1));
+    let mut v = Vec::new();
+    for cy in a.1..=b.1 {
+        for cx in a.0..=b.0 {
+            v.push(m.class(cx, cy));
+        }
+    }
+    v
+}
+
+fn count(v: &[Class], f: impl Fn(Class) -> bool) -> usize {
+    v.iter().filter(|c| f(**c)).count()
+}
+
+#[test]
+fn flat_ground_has_no_obstacles() {
+    let mut m = Mapper::new(Config::default()).unwrap();
+    drive(&mut m, &|_, _, _| 0.0, &line((-2.0, 0.0), (2.0, 0.0), 0.0, 4.0));
+    let v = classes_in(&m, -10.0, -10.0, 10.0, 10.0);
+    let known = count(&v, |c| c == Class::Traversable || c.is_obstacle());
+    let obst = count(&v, Class::is_obstacle);
+    assert!(known > 3000, "only {known} cells classified");
+    assert_eq!(obst, 0, "{obst} false obstacles of {known}");
+    // The footprint is traversable even inside the blind zone.
+    assert_eq!(m.class(cell_of(&m, 2.0, 0.0).0, cell_of(&m, 2.0, 0.0).1), Class::Traversable);
+}
+
+/// 5 cm step at x = 3 m, 10 cm step at x = 6 m (ground 0.15 m beyond).
+fn steps(x: f64, _y: f64, _t: f64) -> f64 {
+    if x < 3.0 {
+        0.0
+    } else if x < 6.0 {
+        0.05
+    } else {
+        0.15
+    }
+}
+
+#[test]
+fn ten_cm_step_blocks_five_cm_step_does_not() {
+    let mut m = Mapper::new(Config::default()).unwrap();
+    drive(&mut m, &steps, &line((-4.0, -1.0), (2.0, 1.0), 0.0, 8.0));
+    let (mut rows10, mut hit10, mut false5) = (0, 0, 0);
+    for cy in cell_of(&m, 0.0, -3.0).1..=cell_of(&m, 0.0, 3.0).1 {
+        // The two cells on either side of each border.
+        let c10 = [m.class(29, cy), m.class(30, cy)];
+        if c10.iter().all(|c| *c != Class::Unknown) {
+            rows10 += 1;
+            hit10 += usize::from(c10.iter().any(|c| c.is_obstacle()));
+        }
+        false5 += [13, 14, 15, 16].iter().filter(|&&cx| m.class(cx, cy).is_obstacle()).count();
+    }
+    assert!(rows10 >= 25, "10 cm border observed in {rows10} rows");
+    // Rows where the riser's points fall evenly on both sides of a cell border are the hard
+    // case for mean heights; the top-of-cell rule catches nearly all of them.
+    assert!(hit10 * 100 >= rows10 * 95, "10 cm step blocked in {hit10} of {rows10} rows");
+    assert_eq!(false5, 0, "5 cm step marked in {false5} cells");
+}
+
+/// 30 deg ramp for y < 0, 15 deg ramp for y >= 0, both from x = 3 m to x = 4 m, plateaus after.
+fn ramps(x: f64, y: f64, _t: f64) -> f64 {
+    let g = if y < 0.0 { 30f64 } else { 15f64 }.to_radians().tan();
+    (x - 3.0).clamp(0.0, 1.0) * g
+}
+
+#[test]
+fn slopes_over_23_deg_block_gentler_ones_do_not() {
+    let mut m = Mapper::new(Config::default()).unwrap();
+    drive(&mut m, &ramps, &line((-3.0, 0.0), (1.5, 0.0), 0.0, 6.0));
+    let steep = classes_in(&m, 3.3, -2.5, 3.7, -0.6);
+    let gentle = classes_in(&m, 3.1, 0.6, 3.9, 2.5);
+    let seen = |v: &[Class]| count(v, |c| c != Class::Unknown && c != Class::Undecided);
+    assert!(seen(&steep) > 20 && seen(&gentle) > 20, "{} {}", seen(&steep), seen(&gentle));
+    assert_eq!(count(&steep, Class::is_obstacle), seen(&steep), "30 deg ramp: {steep:?}");
+    assert_eq!(count(&gentle, Class::is_obstacle), 0, "15 deg ramp: {gentle:?}");
+}
+
+fn pole(x: f64, y: f64, _t: f64) -> f64 {
+    if (x - 4.0).hypot(y - 1.0) < 0.12 {
+        2.0
+    } else {
+        0.0
+    }
+}
+
+#[test]
+fn pole_is_an_obstacle_inflated_with_decaying_costs() {
+    let mut m = Mapper::new(Config::default()).unwrap();
+    drive(&mut m, &pole, &line((-1.0, 0.0), (1.0, 0.0), 0.0, 3.0));
+    let (px, py) = cell_of(&m, 4.0, 1.0);
+    assert_eq!(m.class(px, py), Class::Obstacle);
+    assert_eq!(m.cell(px, py).state, CellState::Obstacle);
+    // The step rule also marks the ground cell touching the pole; 0.4 m (2 cells) beyond that
+    // is inflated; farther is traversable with a cost that decays to zero at 1.2 m.
+    assert!(m.class(px, py - 2).is_obstacle() || m.class(px, py - 2) == Class::Traversable);
+    let near = m.cell(px, py - 3);
+    assert_eq!(near.state, CellState::Inflated, "{near:?}");
+    let (c5, c7) = (m.cell(px, py - 5), m.cell(px, py - 7));
+    assert_eq!(c5.state, CellState::Traversable);
+    assert!(c5.cost > c7.cost && c7.cost > 0, "{} {}", c5.cost, c7.cost);
+    assert_eq!(m.cell(px, py - 10).cost, 0);
+}
+
+/// A 0.4 x 0.4 x 1.7 m person at (3, 0) until t = 2 s, gone after.
+fn walker(x: f64, y: f64, t: f64) -> f64 {
+    if t < 2.0 && (x - 3.0).abs() < 0.2 && y.abs() < 0.2 {
+        1.7
+    } else {
+        0.0
+    }
+}
+
+#[test]
+fn newer_evidence_clears_cells_a_walker_left() {
+    let mut m = Mapper::new(Config::default()).unwrap();
+    drive(&mut m, &walker, &line((-1.0, -1.0), (-0.6, -1.0), 0.0, 1.9));
+    let during = classes_in(&m, 2.8, -0.2, 3.2, 0.2);
+    assert!(count(&during, Class::is_obstacle) > 0, "walker not seen: {during:?}");
+    drive(&mut m, &walker, &line((-0.5, -1.0), (1.0, 1.0), 2.0, 6.0));
+    let after = classes_in(&m, 2.6, -0.4, 3.4, 0.4);
+    assert!(count(&after, |c| c == Class::Traversable) > 5, "{after:?}");
+    assert_eq!(count(&after, Class::is_obstacle), 0, "walker left marks: {after:?}");
+}
+
+#[test]
+fn platform_edge_is_a_negative_obstacle() {
+    // Robot on a 1 m platform ending at x = 5 m; the ground below is out of the cone.
+    let plat = |x: f64, _y: f64, _t: f64| if x < 5.0 { 1.0 } else { 0.0 };
+    let mut m = Mapper::new(Config::default()).unwrap();
+    drive(&mut m, &plat, &line((0.0, 0.0), (1.5, 0.0), 0.0, 3.0));
+    // Per row, the first unobserved cell past the observed edge is a negative obstacle.
+    for y in -5..=5 {
+        let row = classes_in(&m, 4.9, f64::from(y) * 0.2, 5.5, f64::from(y) * 0.2);
+        assert!(row.contains(&Class::NegativeObstacle), "row {y}: {row:?}");
+    }
+    // Nothing on the platform top is marked.
+    let top = classes_in(&m, 3.0, -1.0, 4.7, 1.0);
+    assert_eq!(count(&top, Class::is_obstacle), 0, "{top:?}");
+    // And flat ground with ring gaps gives none.
+    let mut f = Mapper::new(Config::default()).unwrap();
+    drive(&mut f, &|_, _, _| 0.0, &line((0.0, 0.0), (1.5, 0.0), 0.0, 3.0));
+    let v = classes_in(&f, -8.0, -8.0, 8.0, 8.0);
+    assert_eq!(count(&v, |c| c == Class::NegativeObstacle), 0);
+}
+
+#[test]
+fn incremental_equals_full_reclassification() {
+    let world = |x: f64, y: f64, t: f64| walker(x, y, t) + steps(x, y, t) + pole(x, y, t);
+    let path = line((-1.0, -1.0), (1.5, 1.0), 0.0, 4.0);
+    let mut inc = Mapper::new(Config::default()).unwrap();
+    let mut full = Mapper::new(Config::default()).unwrap();
+    full.set_full_reclassification(true);
+    drive(&mut inc, &world, &path);
+    drive(&mut full, &world, &path);
+    let v = inc.planner_view();
+    let (mut diff, mut known) = (0, 0);
+    for cy in v.min_cy..v.min_cy + i64::from(v.height) {
+        for cx in v.min_cx..v.min_cx + i64::from(v.width) {
+            known += usize::from(inc.class(cx, cy) != Class::Unknown);
+            if inc.class(cx, cy) != full.class(cx, cy) || inc.cell(cx, cy) != full.cell(cx, cy) {
+                diff += 1;
+            }
+        }
+    }
+    assert!(known > 2000);
+    assert_eq!(diff, 0, "{diff} of {known} cells differ");
+}
+
+#[test]
+fn tile_versions_are_monotonic_and_tiles_round_trip() {
+    let mut m = Mapper::new(Config::default()).unwrap();
+    let reps = drive(&mut m, &walker, &line((-3.0, 0.0), (3.0, 0.0), 0.0, 6.0));
+    let mut last: BTreeMap<TileIndex, u64> = BTreeMap::new();
+    let mut n = 0;
+    for r in &reps {
+        for t in &r.tiles {
+            let prev = last.insert(t.index, t.version).unwrap_or(0);
+            assert!(t.version > prev, "tile {:?}: {} after {}", t.index, t.version, prev);
+            assert_eq!(decode_tile(&encode_tile(t)).unwrap(), *t);
+            n += 1;
+        }
+    }
+    assert!(n > 4);
+    // At most one publication per tile per 0.5 s (plus the first).
+    let per_tile = reps.iter().flat_map(|r| r.tiles.iter().map(|t| t.index)).filter(|i| *i == TileIndex { tx: 0, ty: 0 }).count();
+    assert!(per_tile <= 6 * 2 + 1, "{per_tile}");
+}
+
+#[test]
+fn bad_input_is_a_typed_error() {
+    let mut m = Mapper::new(Config::default()).unwrap();
+    let bad = RobotPose { x_m: f64::NAN, ..Default::default() };
+    assert!(m.update_points(vec![], &bad, 0.0, Evidence::Scan).is_err());
+    let ok = RobotPose::default();
+    let r = m.update_points(vec![[f32::NAN, 0.0, 0.0], [1.0, 1.0, 0.0]], &ok, 1.0, Evidence::Scan).unwrap();
+    assert_eq!(r.dropped_non_finite, 1);
+    assert!(m.update_points(vec![], &ok, 0.5, Evidence::Scan).is_err());
+    assert!(Mapper::new(Config { grid_size_m: -1.0, ..Config::default() }).is_err());
+}
+
+#[test]
+#[ignore = "debug"]
+fn debug_steps() {
+    let mut m = Mapper::new(Config::default()).unwrap();
+    drive(&mut m, &pole, &line((-1.0, 0.0), (1.0, 0.0), 0.0, 3.0));
+    for cy in (-3..=7).rev() {
+        let mut s = String::new();
+        for cx in 17..=22 {
+            let nb = m.debug_stats(cx, cy);
+            s += &format!("{:?}/{}/{:.3}/{:.4} ", m.class(cx, cy), nb.n, nb.mean_m, nb.var_m2);
+        }
+        println!("{cy}: {s}");
+    }
+}
