@@ -12,6 +12,8 @@ pub use sensing;
 pub use sim;
 pub use slam;
 
+pub mod agent;
 pub mod bus;
 pub mod cli;
 pub mod mission;
+pub mod run;

@@ -7,6 +7,8 @@
 //! bus task). Commands arrive validated as [`Command`]; refused ones arrive as
 //! [`Command::Refused`] with the reason, so the agent can put it in its status.
 
+pub mod orpheus;
+
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU32, Ordering};

@@ -5,6 +5,7 @@ pub mod geo;
 pub mod gnss;
 pub mod lidar;
 pub mod map;
+pub mod mission;
 pub mod plan;
 pub mod sim;
 pub mod slam;

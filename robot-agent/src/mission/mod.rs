@@ -1,1 +1,8 @@
-//! Missions: go to a goal (map or GNSS), teach (record a route) and repeat (follow it back).
+//! Missions: go to a goal (map or GNSS), teach (record a route) and repeat (follow it back),
+//! and the Orpheus navigation-computer gateway's logic.
+
+pub mod gnss;
+pub mod navigate;
+pub mod orpheus;
+pub mod repeat;
+pub mod teach;

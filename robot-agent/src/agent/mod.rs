@@ -1,0 +1,708 @@
+//! One robot's pipeline: sensors in, SLAM -> traversability mapping -> missions -> commands out.
+//!
+//! [`Agent`] is driven by a loop that feeds it timestamped sensor data and asks it for a command
+//! at the control rate; it never reads a clock, so the same code runs in the headless simulator
+//! (faster than real time), live on the bus, and in tests. The loops live in [`crate::run`].
+//!
+//! Frames: SLAM's own frame is the first scan's `base_link`; the agent anchors it in the `map`
+//! frame at the first scan — ENU at the datum with the pose from an RTK fix and the dual-antenna
+//! heading when GNSS allows, else the SLAM frame itself (and GNSS goals are refused).
+
+pub mod config;
+
+use crate::mission::gnss::{GnssGoal, GnssTracker};
+use crate::mission::navigate::{Goal, Navigator};
+use crate::mission::repeat::{RepeatState, RouteFollower};
+use crate::mission::teach::RouteRecorder;
+use common::geo::LocalFrame;
+use common::geom::Pose2;
+use common::grid::{Lattice, Tile};
+use common::msg::{
+    Datum, DriveCmd, GoalCmd, GoalTarget, MapFrame, MissionState, Mode, Pose, Route, RouteCmd, RouteDirection,
+    RouteProgress, SlamHealth, Status,
+};
+pub use config::AgentConfig;
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use planning::{CostRule, GridWindow, PlanGrid};
+use sensing::{GnssSentence, OdomSample, Scan};
+
+/// A velocity command for the base.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Cmd {
+    /// Forward speed, m/s.
+    pub v_mps: f64,
+    /// Turn rate, rad/s.
+    pub omega_rps: f64,
+}
+
+/// What one scan did.
+#[derive(Clone, Debug, Default)]
+pub struct ScanReport {
+    /// SLAM fell back to its prior (or failed outright).
+    pub slam_failed: bool,
+    /// Grid cells reclassified.
+    pub classified_cells: usize,
+    /// The path ahead became blocked.
+    pub path_blocked: bool,
+}
+
+/// The robot pose at one instant, map frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PoseMap {
+    /// `map<-base_link`.
+    pub iso: Isometry3<f64>,
+    /// Planar part.
+    pub planar: Pose2,
+}
+
+impl PoseMap {
+    fn from_iso(iso: Isometry3<f64>) -> Self {
+        Self {
+            planar: Pose2::from_isometry3(&iso),
+            iso,
+        }
+    }
+}
+
+/// The robot agent's state.
+pub struct Agent {
+    cfg: AgentConfig,
+    slam: slam::Slam,
+    mapper: mapping::Mapper,
+    nav: Navigator,
+    repeat: Option<(RouteFollower, Route)>,
+    repeat_paused: bool,
+    recorder: Option<RouteRecorder>,
+    gnss: GnssTracker,
+    follower: control::Follower,
+    /// Set at the first scan.
+    anchor: Option<Anchor>,
+    /// Pose and odometry at the last SLAM update, for interpolation between scans.
+    at_scan: Option<(PoseMap, Option<Pose2>)>,
+    /// `map<-odom` from the last SLAM update.
+    map_from_odom: Option<Isometry3<f64>>,
+    last_odom: Option<OdomSample>,
+    mode: Mode,
+    teleop: Option<(f64, DriveCmd)>,
+    speed_limit_mps: f64,
+    safety: control::SafetyVerdict,
+    safety_t_s: f64,
+    pending_tiles: Vec<Tile>,
+    path_dirty: bool,
+    recorded: Option<Route>,
+    slam_health: SlamHealth,
+    last_error: Option<String>,
+    commands_refused: u32,
+    scans: u32,
+    session_id: String,
+    robot: String,
+    start_unix_ms: u64,
+    last_plan_t_s: f64,
+    last_cmd: Cmd,
+}
+
+/// How the SLAM frame sits in the map frame.
+#[derive(Clone, Debug)]
+struct Anchor {
+    map_from_slam: Isometry3<f64>,
+    frame: MapFrame,
+    local: Option<LocalFrame>,
+}
+
+impl Agent {
+    /// A new agent for one session.
+    pub fn new(cfg: AgentConfig, robot: &str, session_id: &str, start_unix_ms: u64) -> Result<Self, String> {
+        let mapper = mapping::Mapper::new(cfg.mapper.clone()).map_err(|e| format!("mapper config: {e}"))?;
+        Ok(Self {
+            slam: slam::Slam::new(cfg.slam.clone()),
+            mapper,
+            nav: Navigator::new(cfg.nav.clone(), cfg.planner.clone()),
+            repeat: None,
+            repeat_paused: false,
+            recorder: None,
+            gnss: GnssTracker::new(cfg.gnss.clone()),
+            follower: control::Follower::new(cfg.control.clone()),
+            anchor: None,
+            at_scan: None,
+            map_from_odom: None,
+            last_odom: None,
+            mode: Mode::Idle,
+            teleop: None,
+            speed_limit_mps: cfg.control.v_max_mps,
+            safety: control::SafetyVerdict::default(),
+            safety_t_s: f64::NEG_INFINITY,
+            pending_tiles: Vec::new(),
+            path_dirty: false,
+            recorded: None,
+            slam_health: SlamHealth { ok: true, ..SlamHealth::default() },
+            last_error: None,
+            commands_refused: 0,
+            scans: 0,
+            session_id: session_id.to_string(),
+            robot: robot.to_string(),
+            start_unix_ms,
+            last_plan_t_s: f64::NEG_INFINITY,
+            last_cmd: Cmd::default(),
+            cfg,
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &AgentConfig {
+        &self.cfg
+    }
+
+    /// Unix milliseconds of session time `t_s`.
+    pub fn unix_ms(&self, t_s: f64) -> u64 {
+        self.start_unix_ms + (t_s.max(0.0) * 1000.0) as u64
+    }
+
+    /// Feeds one wheel-odometry sample.
+    pub fn on_odom(&mut self, o: OdomSample) {
+        self.slam.push_odometry(o);
+        self.last_odom = Some(o);
+    }
+
+    /// Feeds one NMEA sentence; bad ones are counted (and shown), never fatal.
+    pub fn on_gnss(&mut self, s: &GnssSentence) {
+        if let Err(e) = self.gnss.on_sentence(s.t_s, &s.text) {
+            self.last_error = Some(format!("GNSS: {e}"));
+            return;
+        }
+        // Re-evaluate a GNSS goal with each new fix (methods.md §5).
+        if let (Some(fix), Some(pose)) = (self.gnss.fix(s.t_s), self.at_scan.map(|a| a.0.planar)) {
+            let freeze = self.cfg.gnss.goal_freeze_distance_m;
+            if let Some(goal) = self.nav.goal_mut() {
+                if let Some(g) = goal.gnss.as_mut() {
+                    g.refresh((pose.x_m, pose.y_m), &fix, freeze);
+                    goal.goal_map = g.goal_map;
+                }
+            }
+        }
+    }
+
+    /// Anchors the SLAM frame in the map frame at the first scan.
+    fn anchor_at(&mut self, t_s: f64) {
+        if self.anchor.is_some() {
+            return;
+        }
+        let fix = self.gnss.fix(t_s);
+        let yaw = self.gnss.yaw_enu_rad(t_s);
+        self.anchor = Some(match (self.gnss.can_anchor(t_s), fix, yaw) {
+            (true, Some(fix), Some(yaw)) => {
+                let datum = self.cfg.datum.unwrap_or(fix.lla);
+                let local = LocalFrame::new(datum);
+                let enu = local.lla_to_enu(&fix.lla);
+                // The fix is the primary antenna; base_link is below/behind it.
+                let ant = self.cfg.gnss_antenna_xyz_m;
+                let rot = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw);
+                let base = enu - rot * Vector3::new(ant[0], ant[1], ant[2]);
+                tracing::info!(
+                    "map frame: ENU at datum {:.7}, {:.7}, {:.2} m; start pose ({:.2}, {:.2}) yaw {:.1} deg from GNSS",
+                    datum.lat_deg, datum.lon_deg, datum.h_m, base.x, base.y, yaw.to_degrees()
+                );
+                Anchor {
+                    map_from_slam: Isometry3::from_parts(Translation3::from(base), rot),
+                    frame: MapFrame::EnuAtDatum,
+                    local: Some(local),
+                }
+            }
+            _ => {
+                tracing::warn!("no RTK fix with heading at the first scan: the map frame is the first pose; GNSS goals are refused");
+                Anchor {
+                    map_from_slam: Isometry3::identity(),
+                    frame: MapFrame::FirstPose,
+                    local: None,
+                }
+            }
+        });
+    }
+
+    /// The map frame's anchoring, once the first scan has arrived.
+    pub fn map_frame(&self) -> Option<(MapFrame, Option<Datum>)> {
+        self.anchor.as_ref().map(|a| (a.frame, a.local.as_ref().map(|l| l.datum())))
+    }
+
+    /// Processes one LiDAR scan: SLAM, mapping, safety, path check.
+    pub fn on_scan(&mut self, scan: &Scan) -> ScanReport {
+        self.anchor_at(scan.stamp_s);
+        let mut rep = ScanReport::default();
+        let out = match self.slam.process(scan) {
+            Ok(o) => o,
+            Err(e) => {
+                rep.slam_failed = true;
+                self.slam_health.ok = false;
+                self.slam_health.failures += 1;
+                self.last_error = Some(format!("SLAM: {e}"));
+                return rep;
+            }
+        };
+        self.scans += 1;
+        let d = &out.diagnostics;
+        self.slam_health = SlamHealth {
+            ok: !d.fell_back_to_prior,
+            inlier_ratio: d.inlier_ratio as f32,
+            iterations: d.iterations as u16,
+            degenerate: d.degenerate,
+            failures: self.slam_health.failures + u32::from(d.fell_back_to_prior),
+        };
+        rep.slam_failed = d.fell_back_to_prior;
+        let map_from_slam = self.anchor.as_ref().map(|a| a.map_from_slam).unwrap_or_else(Isometry3::identity);
+        let pose = PoseMap::from_iso(map_from_slam * out.pose_map_base);
+        self.at_scan = Some((pose, None));
+        self.map_from_odom = out.pose_map_odom.map(|m| map_from_slam * m);
+
+        // Traversability from this sweep at the SLAM pose.
+        let pose_map_lidar = map_from_slam * out.pose_map_lidar;
+        let robot = mapping::RobotPose {
+            x_m: pose.iso.translation.vector.x,
+            y_m: pose.iso.translation.vector.y,
+            z_m: pose.iso.translation.vector.z,
+            yaw_rad: pose.planar.yaw_rad,
+        };
+        match self.mapper.update_scan(scan, &pose_map_lidar, &robot, scan.stamp_s) {
+            Ok(u) => {
+                rep.classified_cells = u.classified_cells;
+                self.pending_tiles.extend(u.tiles);
+                self.path_dirty |= u.class_changes > 0;
+            }
+            Err(e) => self.last_error = Some(format!("mapping: {e}")),
+        }
+
+        // Safety stop on the raw sweep, in base_link.
+        let base_from_lidar = self.slam_base_from_lidar();
+        self.safety = control::safety::check(&self.cfg.control.safety, scan.points.iter().map(|p| {
+            let q = base_from_lidar * nalgebra::Point3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z));
+            (q.x, q.y, q.z)
+        }));
+        self.safety_t_s = scan.stamp_s;
+
+        // A grid change on the path asks for a replan now.
+        if self.path_dirty && self.nav.is_driving() {
+            let grid = self.plan_grid(&pose.planar);
+            rep.path_blocked = self.nav.check_path(&grid, &pose.planar);
+            self.path_dirty = false;
+        }
+        rep
+    }
+
+    fn slam_base_from_lidar(&self) -> Isometry3<f64> {
+        let s = &self.cfg.slam.sensor;
+        let [x, y, z] = s.lidar_xyz_m;
+        let [r, p, yw] = s.lidar_rpy_rad;
+        Isometry3::from_parts(Translation3::new(x, y, z), UnitQuaternion::from_euler_angles(r, p, yw))
+    }
+
+    /// The pose now: `map<-base = map<-odom * odom<-base` with the newest odometry, so the
+    /// controller sees the robot move between SLAM updates (methods.md §1).
+    pub fn pose_now(&self) -> Option<PoseMap> {
+        if let (Some(m), Some(o)) = (self.map_from_odom, self.last_odom) {
+            return Some(PoseMap::from_iso(m * o.pose_odom.to_isometry3(0.0)));
+        }
+        let (at, odom_then) = self.at_scan?;
+        let (Some(then), Some(now)) = (odom_then, self.last_odom.map(|o| o.pose_odom)) else {
+            return Some(at);
+        };
+        let delta = then.inverse().compose(&now);
+        let iso = at.iso * delta.to_isometry3(0.0);
+        Some(PoseMap::from_iso(iso))
+    }
+
+    /// Changed tiles since the last call (already versioned by the mapper).
+    pub fn take_tiles(&mut self) -> Vec<Tile> {
+        std::mem::take(&mut self.pending_tiles)
+    }
+
+    /// All current tiles (for a late-joining station).
+    pub fn all_tiles(&self) -> Vec<Tile> {
+        self.mapper.tiles()
+    }
+
+    /// The mapper (evaluation, rendering).
+    pub fn mapper(&self) -> &mapping::Mapper {
+        &self.mapper
+    }
+
+    /// The SLAM state (evaluation).
+    pub fn slam(&self) -> &slam::Slam {
+        &self.slam
+    }
+
+    /// The planning grid around a pose, from the mapper's cells.
+    pub fn plan_grid(&self, pose: &Pose2) -> PlanGrid {
+        let lattice = self.mapper.lattice();
+        let window = GridWindow::centred(lattice, pose.x_m, pose.y_m, self.cfg.planner.num_of_grid_cells);
+        let view = self.mapper.view(window.min_cx, window.min_cy, window.width, window.height);
+        let rule = CostRule::from_config(&self.cfg.planner);
+        let mut grid = PlanGrid::from_cells(&window, &rule, |cx, cy| view.get(cx, cy));
+        // The robot's own footprint is driveable by definition (it stands there).
+        if let Some(c) = grid.world_to_cell(pose.x_m, pose.y_m) {
+            if !grid.is_free(i64::from(c.x), i64::from(c.y)) {
+                grid.set(i64::from(c.x), i64::from(c.y), 0.0, false);
+            }
+        }
+        grid
+    }
+
+    /// The lattice tiles live on.
+    pub fn lattice(&self) -> Lattice {
+        self.mapper.lattice()
+    }
+
+    // ---- commands ----
+
+    /// A goal command; refused ones set `last_error` and return the reason.
+    pub fn on_goal(&mut self, g: &GoalCmd) -> Result<(), String> {
+        let pose = self.pose_now().map(|p| p.planar).unwrap_or_default();
+        let (goal_map, gnss) = match g.target {
+            GoalTarget::Map { x_m, y_m } => ((x_m, y_m), None),
+            GoalTarget::Gnss { lat_deg, lon_deg, h_m } => {
+                let local = self.anchor.as_ref().and_then(|a| a.local.as_ref());
+                let fix = self.gnss.fix(self.at_scan.map(|_| self.last_odom.map_or(0.0, |o| o.t_s)).unwrap_or(0.0));
+                match GnssGoal::new(lat_deg, lon_deg, h_m, local, (pose.x_m, pose.y_m), fix.as_ref()) {
+                    Ok(gg) => (gg.goal_map, Some(gg)),
+                    Err(e) => return Err(self.refuse(format!("goal: {e}"))),
+                }
+            }
+        };
+        self.repeat = None;
+        self.teleop = None;
+        self.mode = Mode::Goal;
+        self.nav.set_goal(Goal {
+            id: g.goal_id,
+            goal_map,
+            tolerance_m: f64::from(g.tolerance_m),
+            gnss,
+        });
+        Ok(())
+    }
+
+    fn refuse(&mut self, reason: String) -> String {
+        self.commands_refused += 1;
+        self.last_error = Some(reason.clone());
+        tracing::warn!("refused: {reason}");
+        reason
+    }
+
+    /// Counts a command the bus refused (bad payload or out of range).
+    pub fn on_refused(&mut self, reason: &str) {
+        self.refuse(reason.to_string());
+    }
+
+    /// Stop now: ends any mission and teleop.
+    pub fn on_stop(&mut self, reason: &str) {
+        self.nav.stop(if reason.is_empty() { "stopped by the operator" } else { reason });
+        self.repeat = None;
+        self.teleop = None;
+        self.mode = Mode::Idle;
+    }
+
+    /// Teleop: drive commands win over missions while they keep coming.
+    pub fn on_drive(&mut self, t_s: f64, d: &DriveCmd) {
+        if let Some((_, last)) = &self.teleop {
+            if d.seq <= last.seq && d.seq != 0 {
+                return;
+            }
+        }
+        if self.mode != Mode::Teleop {
+            self.nav.stop("operator took over (teleop)");
+            self.repeat = None;
+        }
+        self.mode = Mode::Teleop;
+        self.teleop = Some((t_s, d.clone()));
+    }
+
+    /// Speed limit, clamped to the controller's own.
+    pub fn on_speed(&mut self, limit_mps: f64) {
+        self.speed_limit_mps = limit_mps.clamp(0.0, self.cfg.control.v_max_mps);
+    }
+
+    /// Route commands: record, stop recording, repeat, pause, resume, cancel.
+    pub fn on_route(&mut self, t_s: f64, cmd: &RouteCmd) -> Result<(), String> {
+        match cmd {
+            RouteCmd::Record { name } => {
+                self.recorder = Some(RouteRecorder::new(self.cfg.teach.clone(), name.clone()));
+                if let Some(p) = self.pose_now() {
+                    let lla = self.lla_of(&p);
+                    let ms = self.unix_ms(t_s);
+                    if let Some(r) = self.recorder.as_mut() {
+                        r.offer(p.planar, lla, ms);
+                    }
+                }
+                Ok(())
+            }
+            RouteCmd::StopRecording => {
+                let Some(rec) = self.recorder.take() else {
+                    return Err(self.refuse("route: not recording".into()));
+                };
+                let pose = self.pose_now().map(|p| p.planar).unwrap_or_default();
+                let lla = self.pose_now().and_then(|p| self.lla_of(&p));
+                let name = rec.name().to_string();
+                let points = rec.finish(pose, lla, self.unix_ms(t_s));
+                self.recorded = Some(Route {
+                    route_id: format!("{}-{}", self.session_id, self.unix_ms(t_s)),
+                    name,
+                    robot: self.robot.clone(),
+                    session_id: self.session_id.clone(),
+                    datum: self.map_frame().and_then(|f| f.1),
+                    points,
+                });
+                Ok(())
+            }
+            RouteCmd::Repeat { route, direction } => {
+                if route.points.len() < 2 {
+                    return Err(self.refuse("route: fewer than 2 waypoints".into()));
+                }
+                let pts = self.route_in_map(route)?;
+                let ordered: Vec<(f64, f64)> = match direction {
+                    RouteDirection::Forward => pts,
+                    RouteDirection::Reverse => pts.into_iter().rev().collect(),
+                };
+                let pose = self.pose_now().map(|p| p.planar).unwrap_or_default();
+                self.nav.stop("route repeat started");
+                self.teleop = None;
+                self.mode = Mode::Repeat;
+                self.repeat_paused = false;
+                self.repeat = Some((RouteFollower::new(self.cfg.repeat.clone(), &ordered, &pose), route.clone()));
+                Ok(())
+            }
+            RouteCmd::Pause => {
+                self.repeat_paused = true;
+                Ok(())
+            }
+            RouteCmd::Resume => {
+                self.repeat_paused = false;
+                Ok(())
+            }
+            RouteCmd::Cancel => {
+                self.repeat = None;
+                self.mode = Mode::Idle;
+                self.nav.stop("route repeat cancelled");
+                Ok(())
+            }
+        }
+    }
+
+    /// The route's waypoints in this session's map frame: through lat/lon when both have a
+    /// datum, as recorded when the route was taught in this session's frame.
+    fn route_in_map(&mut self, route: &Route) -> Result<Vec<(f64, f64)>, String> {
+        let local = self.anchor.as_ref().and_then(|a| a.local.clone());
+        let same_session = route.session_id == self.session_id;
+        match (local, route.points.iter().all(|p| p.lat_deg.is_some() && p.lon_deg.is_some())) {
+            (Some(l), true) if !same_session || route.datum != Some(l.datum()) => Ok(route
+                .points
+                .iter()
+                .map(|p| {
+                    let e = l.lla_to_enu(&Datum {
+                        lat_deg: p.lat_deg.unwrap_or_default(),
+                        lon_deg: p.lon_deg.unwrap_or_default(),
+                        h_m: p.h_m.unwrap_or(l.datum().h_m),
+                    });
+                    (e.x, e.y)
+                })
+                .collect()),
+            _ if same_session || route.datum.is_none() => Ok(route.points.iter().map(|p| (p.x_m, p.y_m)).collect()),
+            _ => Err(self.refuse("route: recorded in another frame and this session has no datum".into())),
+        }
+    }
+
+    /// The recorded route, once, after recording stopped.
+    pub fn take_recorded(&mut self) -> Option<Route> {
+        self.recorded.take()
+    }
+
+    fn lla_of(&self, p: &PoseMap) -> Option<(f64, f64, f64)> {
+        let l = self.anchor.as_ref()?.local.as_ref()?;
+        let t = p.iso.translation.vector;
+        let d = l.enu_to_lla(&Vector3::new(t.x, t.y, t.z));
+        Some((d.lat_deg, d.lon_deg, d.h_m))
+    }
+
+    // ---- the loop's periodic work ----
+
+    /// Plans when due (goal) or runs a repeat cycle; returns true when a plan was computed (the
+    /// caller times this call).
+    pub fn plan_if_due(&mut self, t_s: f64) -> bool {
+        let Some(pose) = self.pose_now() else { return false };
+        if self.mode == Mode::Repeat {
+            if t_s - self.last_plan_t_s < 1.0 / self.cfg.planner.replan_rate_hz {
+                return false;
+            }
+            self.last_plan_t_s = t_s;
+            let grid = self.plan_grid(&pose.planar);
+            if let Some((f, _)) = self.repeat.as_mut() {
+                match f.update(&pose.planar, &grid) {
+                    RepeatState::Following => {}
+                    RepeatState::Blocked(why) => self.last_error = Some(format!("repeat: {why}")),
+                    RepeatState::Finished => {
+                        self.mode = Mode::Idle;
+                        self.nav.stop("route finished");
+                    }
+                }
+            }
+            return true;
+        }
+        if !self.nav.wants_replan(t_s) {
+            return false;
+        }
+        let grid = self.plan_grid(&pose.planar);
+        self.nav.replan(t_s, &pose.planar, &grid);
+        true
+    }
+
+    /// The command for now (call at the control rate).
+    pub fn control(&mut self, t_s: f64) -> Cmd {
+        let Some(pose) = self.pose_now() else { return Cmd::default() };
+        let lla = self.lla_of(&pose);
+        let ms = self.unix_ms(t_s);
+        if let Some(rec) = self.recorder.as_mut() {
+            rec.offer(pose.planar, lla, ms);
+        }
+        // A stale sweep cannot vouch for the space ahead: treat it as a stop.
+        let safety_fresh = t_s - self.safety_t_s <= self.cfg.safety_scan_timeout_s;
+        let stop_ahead = !safety_fresh || self.safety.stop;
+        let cmd = match self.mode {
+            Mode::Teleop => match &self.teleop {
+                Some((t, d)) if d.deadman && t_s - t <= self.cfg.deadman_s => {
+                    let v = f64::from(d.v_mps).clamp(-self.speed_limit_mps, self.speed_limit_mps);
+                    let v = if stop_ahead && v > 0.0 { 0.0 } else { v };
+                    Cmd { v_mps: v, omega_rps: f64::from(d.omega_rps) }
+                }
+                _ => Cmd::default(),
+            },
+            Mode::Goal => {
+                if self.nav.check_reached(&pose.planar) {
+                    self.mode = Mode::Idle;
+                }
+                self.nav.set_blocked(self.nav.is_driving() && stop_ahead && self.safety.stop, "safety stop: obstacle close to the robot");
+                if self.nav.is_driving() || self.nav.state() == MissionState::Blocked && !self.nav.path().is_empty() {
+                    let path = self.nav.path().to_vec();
+                    self.follow(&pose.planar, &path, stop_ahead, true)
+                } else {
+                    Cmd::default()
+                }
+            }
+            Mode::Repeat if !self.repeat_paused => {
+                let path = self.repeat.as_ref().map(|(f, _)| f.path_ahead(&pose.planar)).unwrap_or_default();
+                self.follow(&pose.planar, &path, stop_ahead, true)
+            }
+            _ => Cmd::default(),
+        };
+        self.last_cmd = cmd;
+        cmd
+    }
+
+    fn follow(&mut self, pose: &Pose2, path: &[(f64, f64)], stop_ahead: bool, to_end: bool) -> Cmd {
+        if path.len() < 2 {
+            return Cmd::default();
+        }
+        let c = self.follower.command(pose, path, self.speed_limit_mps, self.safety.clearance_m, to_end);
+        let mut cmd = Cmd { v_mps: c.v_mps, omega_rps: c.omega_rps };
+        if stop_ahead && cmd.v_mps > 0.0 {
+            // The safety stop overrides everything: stop, rotating in place is still allowed.
+            cmd.v_mps = 0.0;
+        }
+        cmd
+    }
+
+    // ---- what the agent tells the world ----
+
+    /// The pose message for now.
+    pub fn pose_msg(&self, t_s: f64, seq: u32) -> Option<Pose> {
+        let p = self.pose_now()?;
+        let (roll, pitch, yaw) = p.iso.rotation.euler_angles();
+        let t = p.iso.translation.vector;
+        Some(Pose {
+            t_unix_ms: self.unix_ms(t_s),
+            seq,
+            x_m: t.x,
+            y_m: t.y,
+            z_m: t.z,
+            yaw_rad: yaw as f32,
+            pitch_rad: pitch as f32,
+            roll_rad: roll as f32,
+            v_mps: self.last_odom.map_or(0.0, |o| o.v_mps) as f32,
+            omega_rps: self.last_odom.map_or(0.0, |o| o.omega_rps) as f32,
+            fix: self.gnss.fix_state(t_s),
+            lat_lon_deg: self.lla_of(&p).map(|l| (l.0, l.1)),
+        })
+    }
+
+    /// The status message for now.
+    pub fn status(&self, t_s: f64) -> Status {
+        let pose = self.pose_now().map(|p| p.planar).unwrap_or_default();
+        let (mission, reason) = match self.mode {
+            Mode::Teleop => (MissionState::Driving, "teleop".to_string()),
+            Mode::Repeat if self.repeat_paused => (MissionState::Paused, "route repeat paused".into()),
+            Mode::Repeat => (
+                if self.safety.stop { MissionState::Blocked } else { MissionState::Driving },
+                "repeating route".into(),
+            ),
+            _ => (self.nav.state(), self.nav.reason().to_string()),
+        };
+        let route = self.repeat.as_ref().map(|(f, r)| {
+            let (k, n, left) = f.progress(&pose);
+            RouteProgress {
+                route_id: r.route_id.clone(),
+                waypoint: k as u32,
+                waypoints: n as u32,
+                distance_left_m: left as f32,
+                detours: f.detours.len() as u32,
+            }
+        });
+        let anchored_by_gnss = self.anchor.as_ref().is_some_and(|a| a.frame == MapFrame::EnuAtDatum);
+        Status {
+            t_unix_ms: self.unix_ms(t_s),
+            mode: self.mode,
+            mission,
+            reason,
+            goal_m: self.nav.goal().map(|g| g.goal_map),
+            goal_id: self.nav.goal().map_or(0, |g| g.id),
+            fix: self.gnss.fix_state(t_s),
+            gnss_lost: anchored_by_gnss && self.gnss.fix(t_s).is_none(),
+            slam: self.slam_health.clone(),
+            speed_limit_mps: self.speed_limit_mps as f32,
+            recording: self.recorder.is_some(),
+            route,
+            last_error: self.last_error.clone(),
+            commands_refused: self.commands_refused,
+            decode_errors: 0,
+            collisions: 0,
+            scan_hz: 0.0,
+            plan_hz: 0.0,
+        }
+    }
+
+    /// The path being followed (goal or route), map frame.
+    pub fn current_path(&self) -> Vec<(f64, f64)> {
+        match (&self.mode, &self.repeat, self.pose_now()) {
+            (Mode::Repeat, Some((f, _)), Some(p)) => f.path_ahead(&p.planar),
+            _ => self.nav.path().to_vec(),
+        }
+    }
+
+    /// The navigator (state, replans).
+    pub fn navigator(&self) -> &Navigator {
+        &self.nav
+    }
+
+    /// The route follower, while repeating.
+    pub fn route_follower(&self) -> Option<&RouteFollower> {
+        self.repeat.as_ref().map(|(f, _)| f)
+    }
+
+    /// Current mode.
+    pub fn mode(&self) -> Mode {
+        self.mode
+    }
+
+    /// The last command returned by [`Agent::control`].
+    pub fn last_cmd(&self) -> Cmd {
+        self.last_cmd
+    }
+
+    /// Scans processed.
+    pub fn scans(&self) -> u32 {
+        self.scans
+    }
+}

@@ -1,0 +1,131 @@
+//! The mission flags of `robot-agent sim`: headless goal missions, teach-and-repeat, and the live
+//! robot on the bus.
+
+use crate::agent::config::default_config_dir;
+use crate::agent::AgentConfig;
+use crate::bus::{BusConfig, ZenohSettings};
+use crate::run::{self, HeadlessOptions};
+use anyhow::Context;
+use common::geom::Pose2;
+use common::keys::RobotId;
+use common::msg::GoalTarget;
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+/// Mission flags, flattened into `robot-agent sim`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct MissionArgs {
+    /// Headless: drive to this map-frame goal and print a JSON report (`X,Y` metres).
+    #[arg(long, value_name = "X,Y", allow_hyphen_values = true)]
+    pub goal: Option<String>,
+    /// Headless: drive to this GNSS goal (`LAT,LON[,H]` degrees, metres) through the datum.
+    #[arg(long, value_name = "LAT,LON[,H]", allow_hyphen_values = true)]
+    pub goal_gnss: Option<String>,
+    /// Headless: teach the scenario's [teach] path by teleop, then return home along it.
+    #[arg(long)]
+    pub teach_repeat: bool,
+    /// Obstacles (a scenario-format TOML with `[[car]]`, `[[box]]`, `[[tree]]`...) added before the return.
+    #[arg(long, value_name = "FILE")]
+    pub add_obstacles: Option<PathBuf>,
+    /// Robot id on the bus (live mode).
+    #[arg(long, default_value = "husky-1")]
+    pub robot: String,
+    /// Zenoh endpoint to connect to (live mode), e.g. tcp/127.0.0.1:7447.
+    #[arg(long, value_name = "ENDPOINT")]
+    pub connect: Option<String>,
+    /// Zenoh json5 config file (live mode).
+    #[arg(long, value_name = "FILE")]
+    pub zenoh: Option<PathBuf>,
+    /// Folder with robot.toml, slam.toml, mapper.toml, planner.toml, control.toml, mission.toml.
+    #[arg(long, value_name = "DIR")]
+    pub config_dir: Option<PathBuf>,
+    /// Headless: give up after this much simulated time, seconds.
+    #[arg(long, default_value_t = 600.0)]
+    pub timeout: f64,
+    /// Start pose `X,Y,YAW_DEG` instead of the scenario's.
+    #[arg(long, value_name = "X,Y,YAW_DEG", allow_hyphen_values = true)]
+    pub start: Option<String>,
+}
+
+impl MissionArgs {
+    /// True when these flags ask for a mission (otherwise `sim` records or drives).
+    pub fn is_mission(&self) -> bool {
+        self.goal.is_some() || self.goal_gnss.is_some() || self.teach_repeat
+    }
+}
+
+fn numbers(s: &str, what: &str, n: std::ops::RangeInclusive<usize>) -> anyhow::Result<Vec<f64>> {
+    let v: Result<Vec<f64>, _> = s.split(',').map(|t| t.trim().parse::<f64>()).collect();
+    let v = v.with_context(|| format!("{what}: {s:?} is not a comma-separated list of numbers"))?;
+    anyhow::ensure!(n.contains(&v.len()), "{what}: expected {n:?} numbers, got {}", v.len());
+    anyhow::ensure!(v.iter().all(|x| x.is_finite()), "{what}: numbers must be finite");
+    Ok(v)
+}
+
+fn agent_config(args: &MissionArgs) -> anyhow::Result<AgentConfig> {
+    let dir = args.config_dir.clone().unwrap_or_else(default_config_dir);
+    AgentConfig::load_dir(&dir).with_context(|| format!("loading configuration from {}", dir.display()))
+}
+
+fn options(args: &MissionArgs, seed: u64) -> anyhow::Result<HeadlessOptions> {
+    let start = match &args.start {
+        Some(s) => {
+            let v = numbers(s, "--start", 3..=3)?;
+            Some(Pose2::new(v[0], v[1], v[2].to_radians()))
+        }
+        None => None,
+    };
+    Ok(HeadlessOptions { seed, timeout_s: args.timeout, start, ..HeadlessOptions::default() })
+}
+
+/// Runs a headless mission and prints its JSON report (last line).
+pub fn run_headless(scenario: &sim::Scenario, args: &MissionArgs, seed: u64) -> anyhow::Result<()> {
+    let cfg = agent_config(args)?;
+    let opts = options(args, seed)?;
+    if args.teach_repeat {
+        let obstacles = match &args.add_obstacles {
+            Some(p) => Some(run::ObstacleFile::load(p).with_context(|| format!("--add-obstacles {}", p.display()))?),
+            None => None,
+        };
+        let rep = run::run_teach_repeat(scenario, cfg, obstacles.as_ref(), &opts)?;
+        println!("{}", serde_json::to_string(&rep)?);
+        return Ok(());
+    }
+    let target = match (&args.goal, &args.goal_gnss) {
+        (Some(g), None) => {
+            let v = numbers(g, "--goal", 2..=2)?;
+            GoalTarget::Map { x_m: v[0], y_m: v[1] }
+        }
+        (None, Some(g)) => {
+            let v = numbers(g, "--goal-gnss", 2..=3)?;
+            anyhow::ensure!(v[0].abs() <= 90.0 && v[1].abs() <= 180.0, "--goal-gnss: latitude/longitude out of range");
+            GoalTarget::Gnss { lat_deg: v[0], lon_deg: v[1], h_m: v.get(2).copied() }
+        }
+        _ => anyhow::bail!("give one of --goal, --goal-gnss, --teach-repeat"),
+    };
+    let rep = run::run_goal(scenario, cfg, target, &opts)?;
+    eprintln!(
+        "{}: {:.1} s simulated, {:.1} m driven, {} replans ({:.2} ms mean), {:.1}x real time",
+        rep.outcome, rep.time_s, rep.path_length_m, rep.replans, rep.plan_ms_mean, rep.realtime_factor
+    );
+    println!("{}", serde_json::to_string(&rep)?);
+    Ok(())
+}
+
+/// Runs the robot live on the bus until Ctrl-C.
+pub fn run_live(scenario: &sim::Scenario, scenario_name: &str, args: &MissionArgs, seed: u64) -> anyhow::Result<()> {
+    let cfg = agent_config(args)?;
+    let opts = options(args, seed)?;
+    let robot = RobotId::new(args.robot.clone()).map_err(|e| anyhow::anyhow!("--robot: {e}"))?;
+    let mut bus = BusConfig::new(robot.clone());
+    if args.zenoh.is_some() || args.connect.is_some() {
+        bus.zenoh = ZenohSettings {
+            file: args.zenoh.clone(),
+            connect: args.connect.iter().cloned().collect(),
+            ..ZenohSettings::default()
+        };
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    run::live::run_live(scenario, scenario_name, cfg, robot, bus, &opts, stop)
+}

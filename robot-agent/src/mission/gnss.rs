@@ -1,0 +1,299 @@
+//! GNSS state for missions: the latest fix and heading from NMEA sentences, loss detection, the
+//! map frame's anchoring at session start, and GNSS goals through the datum (methods.md §2, §5).
+
+use common::geo::{parse_sentence, LocalFrame, NmeaError, Sentence};
+use common::msg::{Datum, FixState};
+use nalgebra::Vector3;
+use serde::Deserialize;
+
+/// GNSS handling parameters.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct GnssConfig {
+    /// A fix older than this counts as lost, seconds.
+    pub fix_timeout_s: f64,
+    /// A GNSS goal closer than this is no longer re-evaluated per fix (noise would make it wander), metres.
+    pub goal_freeze_distance_m: f64,
+    /// Satellites needed to trust an RTK fix for anchoring the map frame (RTK needs ≥ 5 to initialise).
+    pub min_satellites_anchor: u8,
+    /// Forward offset of the GNSS antenna reference point from base_link, metres.
+    pub antenna_x_m: f64,
+}
+
+impl Default for GnssConfig {
+    fn default() -> Self {
+        Self {
+            fix_timeout_s: 1.0,
+            goal_freeze_distance_m: 5.0,
+            min_satellites_anchor: 5,
+            antenna_x_m: 0.0,
+        }
+    }
+}
+
+/// One position fix.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Fix {
+    /// Arrival time, seconds (session clock).
+    pub t_s: f64,
+    /// Position, ellipsoidal height.
+    pub lla: Datum,
+    /// GGA quality.
+    pub quality: u8,
+    /// Satellites used.
+    pub satellites: u8,
+}
+
+/// Tracks fixes and the dual-antenna heading from a stream of sentences.
+#[derive(Clone, Debug, Default)]
+pub struct GnssTracker {
+    cfg: GnssConfig,
+    fix: Option<Fix>,
+    /// (arrival time, yaw degrees clockwise from north)
+    heading: Option<(f64, f64)>,
+    /// Sentences that failed to parse.
+    pub bad_sentences: u32,
+    /// Last parse error, for the status.
+    pub last_error: Option<String>,
+}
+
+impl GnssTracker {
+    /// A tracker with no fix.
+    pub fn new(cfg: GnssConfig) -> Self {
+        Self {
+            cfg,
+            ..Self::default()
+        }
+    }
+
+    /// Feeds one sentence received at `t_s`. Bad sentences are counted and returned as errors;
+    /// they never disturb the last good fix.
+    pub fn on_sentence(&mut self, t_s: f64, text: &str) -> Result<(), NmeaError> {
+        match parse_sentence(text) {
+            Ok(Sentence::Gga(g)) => {
+                if g.has_fix() {
+                    if let (Some(lat), Some(lon), Some(h)) = (g.lat_deg, g.lon_deg, g.alt_hae_m()) {
+                        self.fix = Some(Fix {
+                            t_s,
+                            lla: Datum {
+                                lat_deg: lat,
+                                lon_deg: lon,
+                                h_m: h,
+                            },
+                            quality: g.quality,
+                            satellites: g.satellites.unwrap_or(0),
+                        });
+                    }
+                }
+                Ok(())
+            }
+            Ok(Sentence::Avr(a)) => {
+                if a.quality > 0 {
+                    if let Some(yaw) = a.yaw_deg {
+                        self.heading = Some((t_s, yaw));
+                    }
+                }
+                Ok(())
+            }
+            Ok(Sentence::Hdt(h)) => {
+                if let Some(yaw) = h.heading_deg {
+                    self.heading = Some((t_s, yaw));
+                }
+                Ok(())
+            }
+            Ok(_) => Ok(()),
+            Err(e) => {
+                self.bad_sentences += 1;
+                self.last_error = Some(format!("GNSS: {e}"));
+                Err(e)
+            }
+        }
+    }
+
+    /// The latest fix if it is fresh at `t_s`.
+    pub fn fix(&self, t_s: f64) -> Option<Fix> {
+        self.fix.filter(|f| t_s - f.t_s <= self.cfg.fix_timeout_s)
+    }
+
+    /// Fix state for the pose message.
+    pub fn fix_state(&self, t_s: f64) -> FixState {
+        self.fix(t_s)
+            .map(|f| FixState::from_gga_quality(f.quality))
+            .unwrap_or(FixState::NoFix)
+    }
+
+    /// Heading of base_link in the ENU frame (counter-clockwise from east), radians, if fresh.
+    pub fn yaw_enu_rad(&self, t_s: f64) -> Option<f64> {
+        self.heading
+            .filter(|(t, _)| t_s - t <= self.cfg.fix_timeout_s)
+            .map(|(_, yaw_cw_north_deg)| common::geom::wrap_angle((90.0 - yaw_cw_north_deg).to_radians()))
+    }
+
+    /// True when an RTK fixed fix with enough satellites and a heading are both fresh: the map
+    /// frame can be anchored as ENU at a datum and the initial pose taken from GNSS.
+    pub fn can_anchor(&self, t_s: f64) -> bool {
+        self.fix(t_s).is_some_and(|f| {
+            f.quality == common::geo::nmea::QUALITY_RTK_FIXED && f.satellites >= self.cfg.min_satellites_anchor
+        }) && self.yaw_enu_rad(t_s).is_some()
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &GnssConfig {
+        &self.cfg
+    }
+}
+
+/// Why a GNSS goal cannot be used.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum GnssGoalError {
+    /// The map frame is SLAM-only.
+    #[error("GNSS goal refused: the map frame has no datum (no RTK fix and heading at session start)")]
+    NoDatum,
+    /// Latitude/longitude out of range or not finite.
+    #[error("GNSS goal refused: lat {0}, lon {1} out of range")]
+    OutOfRange(f64, f64),
+}
+
+/// A goal given as lat/lon, tracked in the map frame (methods.md §5): the goal is placed relative
+/// to the robot's current fix (`goal = robot + d`, d from the exact ENU difference), re-evaluated
+/// at each new fix so SLAM drift does not bias it, except once within `goal_freeze_distance_m`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GnssGoal {
+    /// Target.
+    pub target: Datum,
+    /// Current estimate in the map frame, metres.
+    pub goal_map: (f64, f64),
+    /// No longer re-evaluated (close to the goal).
+    pub frozen: bool,
+}
+
+impl GnssGoal {
+    /// Places a GNSS goal. Without a fresh fix it goes through the datum alone.
+    pub fn new(
+        lat_deg: f64,
+        lon_deg: f64,
+        h_m: Option<f64>,
+        datum: Option<&LocalFrame>,
+        robot_map: (f64, f64),
+        fix: Option<&Fix>,
+    ) -> Result<Self, GnssGoalError> {
+        if !(lat_deg.is_finite() && lon_deg.is_finite() && lat_deg.abs() <= 90.0 && lon_deg.abs() <= 180.0) {
+            return Err(GnssGoalError::OutOfRange(lat_deg, lon_deg));
+        }
+        let frame = datum.ok_or(GnssGoalError::NoDatum)?;
+        let h = h_m.or(fix.map(|f| f.lla.h_m)).unwrap_or(frame.datum().h_m);
+        let target = Datum {
+            lat_deg,
+            lon_deg,
+            h_m: h,
+        };
+        let enu = frame.lla_to_enu(&target);
+        let mut g = Self {
+            target,
+            goal_map: (enu.x, enu.y),
+            frozen: false,
+        };
+        if let Some(f) = fix {
+            g.refresh(robot_map, f, f64::INFINITY);
+        }
+        Ok(g)
+    }
+
+    /// Re-evaluates the goal with a new fix, unless closer than `freeze_m`.
+    pub fn refresh(&mut self, robot_map: (f64, f64), fix: &Fix, freeze_m: f64) {
+        if self.frozen {
+            return;
+        }
+        let dist = (self.goal_map.0 - robot_map.0).hypot(self.goal_map.1 - robot_map.1);
+        if dist < freeze_m {
+            self.frozen = true;
+            return;
+        }
+        let d: Vector3<f64> = LocalFrame::new(fix.lla).lla_to_enu(&self.target);
+        self.goal_map = (robot_map.0 + d.x, robot_map.1 + d.y);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use common::geo::{format_gga, trimble::format_avr, Avr, Gga, UtcTime};
+
+    fn gga(lat: f64, lon: f64, q: u8) -> String {
+        format_gga(&Gga {
+            talker: "GP".into(),
+            time: Some(UtcTime::from_seconds_of_day(3600.0)),
+            lat_deg: Some(lat),
+            lon_deg: Some(lon),
+            quality: q,
+            satellites: Some(12),
+            hdop: Some(0.8),
+            alt_msl_m: Some(500.0),
+            geoid_sep_m: Some(47.0),
+            dgps_age_s: None,
+            dgps_station: None,
+        })
+    }
+
+    fn avr(yaw_deg: f64) -> String {
+        format_avr(&Avr {
+            time: Some(UtcTime::from_seconds_of_day(3600.0)),
+            yaw_deg: Some(yaw_deg),
+            tilt_deg: Some(0.0),
+            roll_deg: None,
+            range_m: Some(1.0),
+            quality: 3,
+            pdop: Some(1.5),
+            satellites: Some(12),
+        })
+    }
+
+    #[test]
+    fn tracks_fix_heading_and_loss() {
+        let mut t = GnssTracker::new(GnssConfig::default());
+        assert!(!t.can_anchor(0.0));
+        t.on_sentence(0.0, &gga(48.1, 11.5, 4)).unwrap();
+        t.on_sentence(0.0, &avr(0.0)).unwrap();
+        assert!(t.can_anchor(0.5));
+        assert_eq!(t.fix_state(0.5), FixState::RtkFixed);
+        assert!((t.fix(0.5).unwrap().lla.h_m - 547.0).abs() < 1e-9);
+        // North (0 deg clockwise from north) is +90 deg counter-clockwise from east.
+        assert!((t.yaw_enu_rad(0.5).unwrap() - std::f64::consts::FRAC_PI_2).abs() < 1e-9);
+        assert_eq!(t.fix_state(2.0), FixState::NoFix, "stale fix counts as lost");
+        // A corrupt sentence is counted and leaves the fix alone.
+        let mut bad = gga(48.2, 11.5, 4);
+        bad.replace_range(10..11, "9");
+        assert!(t.on_sentence(0.6, &bad).is_err());
+        assert_eq!(t.bad_sentences, 1);
+        assert!((t.fix(0.6).unwrap().lla.lat_deg - 48.1).abs() < 1e-12);
+        // RTK float does not anchor.
+        t.on_sentence(0.7, &gga(48.1, 11.5, 5)).unwrap();
+        assert!(!t.can_anchor(0.7));
+    }
+
+    #[test]
+    fn gnss_goal_follows_the_fix_until_close() {
+        let datum = Datum { lat_deg: 48.0, lon_deg: 11.0, h_m: 500.0 };
+        let frame = LocalFrame::new(datum);
+        let target = frame.enu_to_lla(&Vector3::new(30.0, 40.0, 0.0));
+        assert_eq!(
+            GnssGoal::new(target.lat_deg, target.lon_deg, None, None, (0.0, 0.0), None),
+            Err(GnssGoalError::NoDatum)
+        );
+        assert!(GnssGoal::new(95.0, 0.0, None, Some(&frame), (0.0, 0.0), None).is_err());
+        let mut g = GnssGoal::new(target.lat_deg, target.lon_deg, Some(500.0), Some(&frame), (0.0, 0.0), None).unwrap();
+        assert!((g.goal_map.0 - 30.0).abs() < 1e-6 && (g.goal_map.1 - 40.0).abs() < 1e-6);
+        // SLAM drifted: the robot believes it is at (1, 0) while GNSS says (0, 0): the goal moves with it.
+        let fix = Fix { t_s: 0.0, lla: datum, quality: 4, satellites: 12 };
+        g.refresh((1.0, 0.0), &fix, 5.0);
+        assert!((g.goal_map.0 - 31.0).abs() < 1e-3 && (g.goal_map.1 - 40.0).abs() < 1e-3);
+        // Within 5 m the goal freezes.
+        let near = Fix { lla: frame.enu_to_lla(&Vector3::new(28.0, 38.0, 0.0)), ..fix };
+        g.refresh((29.0, 38.0), &near, 5.0);
+        assert!(g.frozen);
+        let before = g.goal_map;
+        g.refresh((0.0, 0.0), &fix, 5.0);
+        assert_eq!(g.goal_map, before);
+    }
+}

@@ -1,0 +1,469 @@
+//! Repeat: follow a taught route, forward or in reverse, around obstacles that appeared since
+//! (methods.md §7, the Orpheus use case).
+//!
+//! Per cycle, on the current planning grid:
+//! 1. advance past waypoints the robot has reached;
+//! 2. skip redundant points: when a later route point within `skip_radius_m` of the robot is
+//!    visible in a straight line, the points in between are dropped (loops left by the teach drive);
+//! 3. push points that lie in non-traversable cells away along the clearance gradient, up to
+//!    `push_max_m`;
+//! 4. check the corridor ahead (`check_ahead_m`) against the grid, which the mapper inflated by the
+//!    robot's half width; if blocked, plan the shortest detour with A* (unknown cells assumed
+//!    traversable) to the first reachable route point past the blockage, resample it at the
+//!    waypoint spacing and splice it in. Only a blocked route is replanned: where the route is
+//!    free it is followed exactly as taught, even where it looks suboptimal.
+
+use common::geom::Pose2;
+use planning::smooth::{point_free, segment_free};
+use planning::{CellXY, PlanGrid, Planner, SearchLimits};
+use serde::Deserialize;
+
+/// Repeat parameters.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct RepeatConfig {
+    /// A waypoint counts as reached within this distance, metres.
+    pub reached_radius_m: f64,
+    /// Later route points this close to the robot may be jumped to when visible, metres.
+    pub skip_radius_m: f64,
+    /// Length of route ahead checked against the grid each cycle, metres.
+    pub check_ahead_m: f64,
+    /// How far a point in a non-traversable cell may be pushed, metres.
+    pub push_max_m: f64,
+    /// Spacing of detour waypoints, metres.
+    pub waypoint_spacing_m: f64,
+    /// How far past a blockage rejoin points are searched, metres.
+    pub rejoin_search_m: f64,
+    /// Rejoin points closer than this to the blockage are not used (the robot body needs room
+    /// to turn back onto the route), metres.
+    pub rejoin_min_past_m: f64,
+    /// Distance at which the final waypoint counts as reached, metres.
+    pub goal_tolerance_m: f64,
+}
+
+impl Default for RepeatConfig {
+    fn default() -> Self {
+        Self {
+            reached_radius_m: 0.6,
+            skip_radius_m: 1.0,
+            check_ahead_m: 8.0,
+            push_max_m: 0.6,
+            waypoint_spacing_m: 1.0,
+            rejoin_search_m: 20.0,
+            rejoin_min_past_m: 0.5,
+            goal_tolerance_m: 0.3,
+        }
+    }
+}
+
+/// One waypoint of the route being repeated.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Waypoint {
+    /// Map position, metres.
+    pub p: (f64, f64),
+    /// Index in the taught route (driving order), None for detour points.
+    pub taught: Option<usize>,
+}
+
+/// A detour spliced into the route.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Detour {
+    /// Taught index of the first blocked route point.
+    pub blocked_taught: usize,
+    /// Taught index where the detour rejoins the route.
+    pub rejoin_taught: usize,
+    /// Where it rejoins, map frame.
+    pub rejoin_m: (f64, f64),
+    /// Where the route was first blocked, map frame.
+    pub blocked_m: (f64, f64),
+    /// Detour length, metres.
+    pub length_m: f64,
+}
+
+/// State of a repeat after a cycle.
+#[derive(Clone, Debug, PartialEq)]
+pub enum RepeatState {
+    /// Following the route.
+    Following,
+    /// The route ahead is blocked and no detour exists (yet); the robot waits.
+    Blocked(String),
+    /// The last waypoint is reached.
+    Finished,
+}
+
+/// Follows a taught route.
+#[derive(Debug)]
+pub struct RouteFollower {
+    cfg: RepeatConfig,
+    wps: Vec<Waypoint>,
+    next: usize,
+    taught_len: usize,
+    /// Detours spliced so far.
+    pub detours: Vec<Detour>,
+    planner: Planner,
+}
+
+impl RouteFollower {
+    /// Starts following `route_m` (already in driving order: reversed for a return home) from
+    /// the route point nearest to the robot.
+    pub fn new(cfg: RepeatConfig, route_m: &[(f64, f64)], robot: &Pose2) -> Self {
+        let wps: Vec<Waypoint> = route_m
+            .iter()
+            .enumerate()
+            .map(|(i, p)| Waypoint { p: *p, taught: Some(i) })
+            .collect();
+        let next = nearest(&wps, (robot.x_m, robot.y_m));
+        Self {
+            cfg,
+            taught_len: wps.len(),
+            wps,
+            next,
+            detours: Vec::new(),
+            planner: Planner::new(),
+        }
+    }
+
+    /// The remaining waypoints, robot first: what the path follower tracks.
+    pub fn path_ahead(&self, robot: &Pose2) -> Vec<(f64, f64)> {
+        std::iter::once((robot.x_m, robot.y_m))
+            .chain(self.wps[self.next.min(self.wps.len())..].iter().map(|w| w.p))
+            .collect()
+    }
+
+    /// All waypoints (taught and spliced).
+    pub fn waypoints(&self) -> &[Waypoint] {
+        &self.wps
+    }
+
+    /// (next waypoint index, waypoint count, distance left along the route in metres).
+    pub fn progress(&self, robot: &Pose2) -> (usize, usize, f64) {
+        let ahead = self.path_ahead(robot);
+        let left = ahead.windows(2).map(|w| dist(w[0], w[1])).sum();
+        (self.next, self.wps.len(), left)
+    }
+
+    /// Number of taught waypoints.
+    pub fn taught_len(&self) -> usize {
+        self.taught_len
+    }
+
+    /// One repeat cycle on the current grid.
+    pub fn update(&mut self, robot: &Pose2, grid: &PlanGrid) -> RepeatState {
+        let r = (robot.x_m, robot.y_m);
+        self.advance(r);
+        if self.next >= self.wps.len() {
+            return RepeatState::Finished;
+        }
+        if self.next == self.wps.len() - 1 && dist(r, self.wps[self.next].p) <= self.cfg.goal_tolerance_m {
+            self.next = self.wps.len();
+            return RepeatState::Finished;
+        }
+        self.skip_redundant(r, grid);
+        self.push_points(grid);
+        match self.first_blocked(r, grid) {
+            None => RepeatState::Following,
+            Some(b) => match self.splice_detour(r, b, grid) {
+                Ok(()) => RepeatState::Following,
+                Err(why) => RepeatState::Blocked(why),
+            },
+        }
+    }
+
+    fn advance(&mut self, r: (f64, f64)) {
+        while self.next < self.wps.len() {
+            let p = self.wps[self.next].p;
+            let reached = dist(r, p) <= self.cfg.reached_radius_m && self.next + 1 < self.wps.len();
+            // Passed: the robot is beyond the point along the segment to the following one.
+            let passed = self.next + 1 < self.wps.len() && {
+                let q = self.wps[self.next + 1].p;
+                let (dx, dy) = (q.0 - p.0, q.1 - p.1);
+                let len2 = dx * dx + dy * dy;
+                len2 > 1e-9 && ((r.0 - p.0) * dx + (r.1 - p.1) * dy) / len2 > 0.0 && dist(r, p) < 2.0 * self.cfg.reached_radius_m.max(1.0)
+            };
+            if reached || passed {
+                self.next += 1;
+            } else {
+                break;
+            }
+        }
+    }
+
+    fn skip_redundant(&mut self, r: (f64, f64), grid: &PlanGrid) {
+        let mut along = 0.0;
+        let mut best = None;
+        for j in self.next + 1..self.wps.len() {
+            along += dist(self.wps[j - 1].p, self.wps[j].p);
+            let d = dist(r, self.wps[j].p);
+            // Only a point that is near in space but far along the route is redundant.
+            if d <= self.cfg.skip_radius_m && along > d + 2.0 * self.cfg.skip_radius_m && segment_free(grid, r, self.wps[j].p) {
+                best = Some(j);
+            }
+            if along > self.cfg.rejoin_search_m * 3.0 {
+                break;
+            }
+        }
+        if let Some(j) = best {
+            self.next = j;
+        }
+    }
+
+    fn push_points(&mut self, grid: &PlanGrid) {
+        let mut along = 0.0;
+        for i in self.next..self.wps.len() {
+            if i > self.next {
+                along += dist(self.wps[i - 1].p, self.wps[i].p);
+            }
+            if along > self.cfg.check_ahead_m {
+                break;
+            }
+            let p = self.wps[i].p;
+            if point_free(grid, p) {
+                continue;
+            }
+            if let Some(q) = push_free(grid, p, self.cfg.push_max_m) {
+                self.wps[i].p = q;
+            }
+        }
+    }
+
+    /// Index of the first waypoint whose segment from its predecessor (or from the robot) is blocked.
+    fn first_blocked(&self, r: (f64, f64), grid: &PlanGrid) -> Option<usize> {
+        let mut prev = r;
+        let mut along = 0.0;
+        for i in self.next..self.wps.len() {
+            let p = self.wps[i].p;
+            if !segment_free(grid, prev, p) {
+                return Some(i);
+            }
+            along += dist(prev, p);
+            if along > self.cfg.check_ahead_m {
+                break;
+            }
+            prev = p;
+        }
+        None
+    }
+
+    fn splice_detour(&mut self, r: (f64, f64), blocked: usize, grid: &PlanGrid) -> Result<(), String> {
+        let start = grid
+            .world_to_cell(r.0, r.1)
+            .filter(|c| grid.is_free(i64::from(c.x), i64::from(c.y)))
+            .ok_or_else(|| "robot is in a non-traversable cell".to_string())?;
+        let blocked_m = self.wps[blocked].p;
+        // Candidate rejoin points: past the blockage, in route order, free, with room past it.
+        let mut along = 0.0;
+        let mut first_clear_seen = false;
+        for j in blocked..self.wps.len() {
+            if j > blocked {
+                along += dist(self.wps[j - 1].p, self.wps[j].p);
+            }
+            if along > self.cfg.rejoin_search_m {
+                break;
+            }
+            let p = self.wps[j].p;
+            if !point_free(grid, p) {
+                first_clear_seen = false;
+                continue;
+            }
+            // Skip the first free point right at the blockage's edge: rejoining there would
+            // graze the obstacle; the next one leaves room.
+            if !first_clear_seen && dist(p, blocked_m) < self.cfg.rejoin_min_past_m {
+                first_clear_seen = true;
+                continue;
+            }
+            // The rest of the route right after j must be free too, or the detour ends in a trap.
+            if j + 1 < self.wps.len() && !segment_free(grid, p, self.wps[j + 1].p) {
+                continue;
+            }
+            let Some(goal) = grid.world_to_cell(p.0, p.1) else { continue };
+            let limits = SearchLimits { max_expansions: Some(200_000) };
+            let Ok(path) = self.planner.plan_with(grid, start, goal, limits, &mut || false) else {
+                continue;
+            };
+            let detour = resample(grid, &path.cells, self.cfg.waypoint_spacing_m, r, p);
+            let length_m = detour.windows(2).map(|w| dist(w[0], w[1])).sum::<f64>();
+            let spliced: Vec<Waypoint> = detour[1..detour.len() - 1]
+                .iter()
+                .map(|&p| Waypoint { p, taught: None })
+                .collect();
+            self.detours.push(Detour {
+                blocked_taught: self.wps[blocked].taught.unwrap_or(blocked),
+                rejoin_taught: self.wps[j].taught.unwrap_or(j),
+                rejoin_m: p,
+                blocked_m,
+                length_m,
+            });
+            self.wps.splice(self.next..j, spliced);
+            return Ok(());
+        }
+        Err(format!(
+            "route blocked at ({:.1}, {:.1}) and no detour rejoins it within {:.0} m",
+            blocked_m.0, blocked_m.1, self.cfg.rejoin_search_m
+        ))
+    }
+}
+
+fn dist(a: (f64, f64), b: (f64, f64)) -> f64 {
+    (a.0 - b.0).hypot(a.1 - b.1)
+}
+
+fn nearest(wps: &[Waypoint], p: (f64, f64)) -> usize {
+    wps.iter()
+        .enumerate()
+        .min_by(|a, b| dist(a.1.p, p).total_cmp(&dist(b.1.p, p)))
+        .map(|(i, _)| i)
+        .unwrap_or(0)
+}
+
+/// Moves `p` out of non-traversable cells by a local search on a ring of growing radius, towards
+/// the free cell that is nearest (the steepest direction of the clearance field); None when
+/// nothing is free within `max_m`.
+fn push_free(grid: &PlanGrid, p: (f64, f64), max_m: f64) -> Option<(f64, f64)> {
+    let step = grid.cell_size_m();
+    let rings = (max_m / step).ceil() as i32;
+    for k in 1..=rings {
+        let r = f64::from(k) * step;
+        let n = (8 * k) as usize;
+        let best = (0..n)
+            .map(|i| {
+                let a = i as f64 / n as f64 * std::f64::consts::TAU;
+                (p.0 + r * a.cos(), p.1 + r * a.sin())
+            })
+            .find(|q| point_free(grid, *q));
+        if best.is_some() {
+            return best;
+        }
+    }
+    None
+}
+
+/// Cell path -> waypoints every `spacing_m`, starting at `from` and ending at `to` exactly; the
+/// corners of the A* path are kept so the detour never cuts through a blocked cell.
+fn resample(grid: &PlanGrid, cells: &[CellXY], spacing_m: f64, from: (f64, f64), to: (f64, f64)) -> Vec<(f64, f64)> {
+    let mut pts: Vec<(f64, f64)> = cells.iter().map(|c| grid.cell_center_m(*c)).collect();
+    if let Some(f) = pts.first_mut() {
+        *f = from;
+    }
+    if let Some(l) = pts.last_mut() {
+        *l = to;
+    }
+    // Keep direction changes, then thin straight runs to the spacing.
+    let mut out = vec![pts[0]];
+    let mut since = 0.0;
+    for i in 1..pts.len() {
+        since += dist(pts[i - 1], pts[i]);
+        let corner = i + 1 < pts.len() && {
+            let (a, b, c) = (pts[i - 1], pts[i], pts[i + 1]);
+            ((b.0 - a.0) * (c.1 - b.1) - (b.1 - a.1) * (c.0 - b.0)).abs() > 1e-9
+        };
+        if since >= spacing_m || corner || i + 1 == pts.len() {
+            out.push(pts[i]);
+            since = 0.0;
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A straight 30 m route along y = 10 on a 40 x 20 m grid.
+    fn straight_route() -> Vec<(f64, f64)> {
+        (0..=30).map(|i| (5.0 + f64::from(i), 10.0)).collect()
+    }
+
+    fn empty_grid() -> PlanGrid {
+        PlanGrid::new(200, 100, 0.2, (0.0, 0.0))
+    }
+
+    fn block_rect(g: &mut PlanGrid, x0: f64, y0: f64, x1: f64, y1: f64) {
+        let (cx0, cy0) = g.world_to_cell_unbounded(x0, y0);
+        let (cx1, cy1) = g.world_to_cell_unbounded(x1, y1);
+        for y in cy0..=cy1 {
+            for x in cx0..=cx1 {
+                g.set_blocked(x, y);
+            }
+        }
+    }
+
+    #[test]
+    fn free_route_is_followed_exactly() {
+        let route = straight_route();
+        let robot = Pose2::new(5.0, 10.0, 0.0);
+        let mut f = RouteFollower::new(RepeatConfig::default(), &route, &robot);
+        assert_eq!(f.update(&robot, &empty_grid()), RepeatState::Following);
+        let ahead = f.path_ahead(&robot);
+        assert!(ahead[1..].iter().all(|p| (p.1 - 10.0).abs() < 1e-12), "no point moved");
+        assert!(f.detours.is_empty());
+        let (_, n, left) = f.progress(&robot);
+        assert_eq!(n, 31);
+        assert!((left - 30.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn blocked_route_gets_a_detour_that_rejoins_right_after_the_obstacle() {
+        let route = straight_route();
+        let mut g = empty_grid();
+        // A parked car (inflated) across the route from x = 14 to 18.
+        block_rect(&mut g, 14.0, 8.5, 18.0, 11.5);
+        let robot = Pose2::new(9.0, 10.0, 0.0);
+        let mut f = RouteFollower::new(RepeatConfig::default(), &route, &robot);
+        assert_eq!(f.update(&robot, &g), RepeatState::Following);
+        assert_eq!(f.detours.len(), 1);
+        let d = &f.detours[0];
+        assert!(d.rejoin_m.0 > 18.0 && d.rejoin_m.0 <= 20.0, "rejoins within 2 m past the obstacle: {:?}", d.rejoin_m);
+        let ahead = f.path_ahead(&robot);
+        assert!(ahead.windows(2).all(|w| segment_free(&g, w[0], w[1])), "detour is free: {ahead:?}");
+        // After the rejoin point the taught route continues unchanged.
+        let k = ahead.iter().position(|p| *p == d.rejoin_m).unwrap();
+        assert!(ahead[k..].iter().all(|p| (p.1 - 10.0).abs() < 1e-12));
+        // The detour is not replanned while it stays free.
+        assert_eq!(f.update(&robot, &g), RepeatState::Following);
+        assert_eq!(f.detours.len(), 1);
+    }
+
+    #[test]
+    fn a_wall_across_everything_blocks() {
+        let route = straight_route();
+        let mut g = empty_grid();
+        block_rect(&mut g, 14.0, 0.0, 15.0, 19.99);
+        let robot = Pose2::new(9.0, 10.0, 0.0);
+        let mut f = RouteFollower::new(RepeatConfig::default(), &route, &robot);
+        assert!(matches!(f.update(&robot, &g), RepeatState::Blocked(_)));
+    }
+
+    #[test]
+    fn points_near_obstacles_are_pushed_out() {
+        let route = straight_route();
+        let mut g = empty_grid();
+        // A bush whose inflation just covers the route at x = 12.
+        block_rect(&mut g, 11.8, 10.0, 12.2, 11.0);
+        let robot = Pose2::new(9.0, 10.0, 0.0);
+        let mut f = RouteFollower::new(RepeatConfig { check_ahead_m: 2.0, ..RepeatConfig::default() }, &route, &robot);
+        f.update(&robot, &g);
+        let p = f.waypoints().iter().find(|w| w.taught == Some(7)).unwrap().p;
+        assert!(point_free(&g, p) && p.1 < 10.0 && p.1 > 9.5, "pushed just below the bush: {p:?}");
+    }
+
+    #[test]
+    fn loops_are_skipped_only_when_close() {
+        // Out 10 m, a 4 m loop, back through the same place, then on.
+        let mut route: Vec<(f64, f64)> = (0..=10).map(|i| (5.0 + f64::from(i), 10.0)).collect();
+        route.extend([(15.0, 12.0), (13.0, 12.0), (13.0, 10.2), (15.2, 10.1)]);
+        route.extend((1..=10).map(|i| (15.2 + f64::from(i), 10.0)));
+        let robot = Pose2::new(15.0, 10.0, 0.0);
+        let mut f = RouteFollower::new(RepeatConfig::default(), &route, &robot);
+        f.update(&robot, &empty_grid());
+        let ahead = f.path_ahead(&robot);
+        assert!(ahead[1].0 > 15.0 && (ahead[1].1 - 10.0).abs() < 0.2, "loop skipped: {:?}", &ahead[..3]);
+    }
+
+    #[test]
+    fn finishes_at_the_last_point() {
+        let route = straight_route();
+        let robot = Pose2::new(35.0, 10.1, 0.0);
+        let mut f = RouteFollower::new(RepeatConfig::default(), &route, &robot);
+        assert_eq!(f.update(&robot, &empty_grid()), RepeatState::Finished);
+    }
+}

@@ -1,0 +1,138 @@
+//! A simulated robot live on the Zenoh bus, in real time, until stopped.
+
+use super::{HeadlessOptions, Rig};
+use crate::agent::AgentConfig;
+use crate::bus::{BusConfig, BusHandle, Command};
+use common::keys::RobotId;
+use common::msg::{MapFrame, Path, Session};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Pose publication period, seconds (10 Hz).
+const POSE_PERIOD_S: f64 = 0.1;
+/// Status publication period, seconds (2 Hz, and on change).
+const STATUS_PERIOD_S: f64 = 0.5;
+
+/// Runs one simulated robot on the bus until `stop` is set (Ctrl-C) or the process is killed.
+pub fn run_live(
+    scenario: &sim::Scenario,
+    scenario_name: &str,
+    cfg: AgentConfig,
+    robot: RobotId,
+    bus_cfg: BusConfig,
+    opts: &HeadlessOptions,
+    stop: Arc<AtomicBool>,
+) -> anyhow::Result<()> {
+    let mut rig = Rig::new(scenario, cfg, opts, robot.as_str())?;
+    let bus = BusHandle::start(bus_cfg).map_err(|e| anyhow::anyhow!("zenoh: {e}"))?;
+    tracing::info!("robot {robot} live in scenario {scenario_name}");
+    let wall0 = Instant::now();
+    let mut session_sent = false;
+    let (mut next_pose, mut next_status) = (0.0, 0.0);
+    let mut pose_seq = 0u32;
+    let mut last_path: Vec<(f64, f64)> = Vec::new();
+    let mut last_state = None;
+    let mut scan_times: std::collections::VecDeque<f64> = Default::default();
+    while !stop.load(Ordering::Relaxed) {
+        // Keep simulated time with the wall clock; if the CPU falls behind, time slows down
+        // rather than the robot skipping sensor data.
+        let target = wall0.elapsed().as_secs_f64();
+        if rig.t_s() >= target {
+            std::thread::sleep(Duration::from_millis(2));
+            continue;
+        }
+        while let Some(cmd) = bus.try_recv() {
+            apply(&mut rig, cmd);
+        }
+        let ev = rig.step();
+        let t = rig.t_s();
+        if ev.scan {
+            scan_times.push_back(t);
+            while scan_times.front().is_some_and(|s| t - s > 2.0) {
+                scan_times.pop_front();
+            }
+        }
+        if !session_sent {
+            if let Some((frame, datum)) = rig.agent.map_frame() {
+                let lattice = rig.agent.lattice();
+                bus.publish_session(&Session {
+                    session_id: format!("{}-{}", robot, rig.agent.unix_ms(0.0)),
+                    robot: robot.to_string(),
+                    start_unix_ms: rig.agent.unix_ms(0.0),
+                    frame,
+                    datum: if frame == MapFrame::EnuAtDatum { datum } else { None },
+                    cell_size_m: lattice.cell_size_m,
+                    tile_cells: lattice.tile_cells,
+                    source: format!("sim:{scenario_name}"),
+                    agent_version: env!("CARGO_PKG_VERSION").into(),
+                });
+                session_sent = true;
+            }
+        }
+        for tile in rig.agent.take_tiles() {
+            bus.publish_tile(tile.index, common::grid::encode_tile(&tile));
+        }
+        if let Some(route) = rig.agent.take_recorded() {
+            bus.publish_route(&route);
+        }
+        if t >= next_pose {
+            next_pose += POSE_PERIOD_S;
+            if let Some(p) = rig.agent.pose_msg(t, pose_seq) {
+                pose_seq += 1;
+                bus.publish_pose(&p);
+            }
+        }
+        let mut status = rig.agent.status(t);
+        let state = (status.mode, status.mission);
+        if t >= next_status || last_state != Some(state) {
+            next_status = t + STATUS_PERIOD_S;
+            last_state = Some(state);
+            let c = bus.counters();
+            status.collisions = rig.collisions;
+            status.decode_errors = c.decode_errors;
+            status.scan_hz = scan_times.len() as f32 / 2.0;
+            bus.publish_status(&status);
+        }
+        let path = rig.agent.current_path();
+        if path != last_path {
+            bus.publish_path(&Path {
+                t_unix_ms: rig.agent.unix_ms(t),
+                goal_id: status.goal_id,
+                points_m: path.iter().map(|p| (p.0 as f32, p.1 as f32)).collect(),
+            });
+            last_path = path;
+        }
+    }
+    tracing::info!("robot {robot} stopping");
+    bus.close();
+    Ok(())
+}
+
+fn apply(rig: &mut Rig, cmd: Command) {
+    let t = rig.t_s();
+    let a = &mut rig.agent;
+    let r = match cmd {
+        Command::Goal(g) => a.on_goal(&g).map(|_| ()),
+        Command::Route(r) => a.on_route(t, &r),
+        Command::Drive(d) => {
+            a.on_drive(t, &d);
+            Ok(())
+        }
+        Command::Stop(s) => {
+            a.on_stop(&s.reason);
+            Ok(())
+        }
+        Command::Speed(s) => {
+            a.on_speed(f64::from(s.limit_mps));
+            Ok(())
+        }
+        Command::Refused { reason } => {
+            a.on_refused(&reason);
+            Ok(())
+        }
+    };
+    if let Err(e) = r {
+        tracing::warn!("command refused: {e}");
+    }
+}

@@ -1,0 +1,577 @@
+//! The loops that drive an [`Agent`] with the built-in simulator: headless missions that run as
+//! fast as the CPU allows and print a report, and the live robot on the Zenoh bus.
+//!
+//! The simulator is the robot here: the agent only sees its sensor outputs (scans, odometry,
+//! NMEA), never its truth; the truth is used only to score the outcome.
+
+pub mod live;
+
+use crate::agent::{Agent, AgentConfig, Cmd};
+use common::geom::Pose2;
+use common::msg::{GoalCmd, GoalTarget, MissionState, Mode, RouteCmd, RouteDirection};
+use serde::Serialize;
+use std::time::Instant;
+
+/// Simulator step, seconds (plant and sensor timing resolution).
+pub const SIM_DT_S: f64 = 0.01;
+/// Control period, seconds (20 Hz, methods.md §6).
+pub const CONTROL_DT_S: f64 = 0.05;
+
+/// Options of a headless run.
+#[derive(Clone, Debug)]
+pub struct HeadlessOptions {
+    /// Simulator seed (walkers, noise).
+    pub seed: u64,
+    /// Give up after this much simulated time, seconds.
+    pub timeout_s: f64,
+    /// Start pose override (else the scenario's).
+    pub start: Option<Pose2>,
+    /// Stop at the first collision.
+    pub stop_on_collision: bool,
+}
+
+impl Default for HeadlessOptions {
+    fn default() -> Self {
+        Self {
+            seed: 1,
+            timeout_s: 600.0,
+            start: None,
+            stop_on_collision: true,
+        }
+    }
+}
+
+/// The report of a headless goal mission (`robot-agent sim --headless --goal`).
+#[derive(Clone, Debug, Serialize)]
+pub struct MissionReport {
+    /// `reached`, `no_path`, `timeout` or `collision`.
+    pub outcome: String,
+    /// Truth distance from the robot to the goal at the end, metres.
+    pub final_error_m: f64,
+    /// Simulated time, seconds.
+    pub time_s: f64,
+    /// Distance driven (truth), metres.
+    pub path_length_m: f64,
+    /// Collisions (simulator truth).
+    pub collisions: u32,
+    /// Plans computed.
+    pub replans: u32,
+    /// Mean wall-clock time of a plan, milliseconds.
+    pub plan_ms_mean: f64,
+    /// Worst plan, milliseconds.
+    pub plan_ms_max: f64,
+    /// The mission's last reason.
+    pub reason: String,
+    /// Goal in the map frame, metres.
+    pub goal_m: (f64, f64),
+    /// Final truth position, metres.
+    pub final_m: (f64, f64),
+    /// Mean wall-clock time of a scan (SLAM + mapping), milliseconds.
+    pub scan_ms_mean: f64,
+    /// Simulated seconds per wall-clock second.
+    pub realtime_factor: f64,
+    /// SLAM fallbacks to the prior.
+    pub slam_failures: u32,
+    /// Truth trajectory, decimated to 0.5 m, for scenario checks.
+    pub trajectory_m: Vec<(f64, f64)>,
+}
+
+/// Timing statistics.
+#[derive(Default, Clone, Copy, Debug)]
+struct Stat {
+    n: u32,
+    sum: f64,
+    max: f64,
+}
+
+impl Stat {
+    fn add(&mut self, ms: f64) {
+        self.n += 1;
+        self.sum += ms;
+        self.max = self.max.max(ms);
+    }
+    fn mean(&self) -> f64 {
+        if self.n == 0 { 0.0 } else { self.sum / f64::from(self.n) }
+    }
+}
+
+/// A simulator with an agent on it, stepped together.
+pub struct Rig {
+    /// The world.
+    pub sim: sim::Simulation,
+    /// The robot's brain.
+    pub agent: Agent,
+    cmd: Cmd,
+    next_control_s: f64,
+    plan: Stat,
+    scan: Stat,
+    /// Collisions so far (truth).
+    pub collisions: u32,
+    driven_m: f64,
+    last_truth: (f64, f64),
+    trajectory: Vec<(f64, f64)>,
+}
+
+impl Rig {
+    /// Builds the simulator and the agent. The agent shares the scenario's datum so that
+    /// several robots in one world share one map frame (what an operator does by setting it).
+    pub fn new(scenario: &sim::Scenario, mut cfg: AgentConfig, opts: &HeadlessOptions, robot: &str) -> anyhow::Result<Self> {
+        cfg.datum = Some(scenario.datum());
+        let mut sim_cfg = sim::SimConfig { seed: opts.seed, ..sim::SimConfig::default() };
+        if let Some(s) = opts.start {
+            sim_cfg.start = Some(s);
+        }
+        sim_cfg.robot = cfg.profile.clone();
+        let sim = sim::Simulation::new(scenario, sim_cfg);
+        let now_ms = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_millis() as u64)
+            .unwrap_or(0);
+        let session = format!("{robot}-{now_ms}");
+        let agent = Agent::new(cfg, robot, &session, now_ms).map_err(anyhow::Error::msg)?;
+        let t = sim.truth_pose().translation.vector;
+        Ok(Self {
+            sim,
+            agent,
+            cmd: Cmd::default(),
+            next_control_s: 0.0,
+            plan: Stat::default(),
+            scan: Stat::default(),
+            collisions: 0,
+            driven_m: 0.0,
+            last_truth: (t.x, t.y),
+            trajectory: vec![(t.x, t.y)],
+        })
+    }
+
+    /// Session time, seconds.
+    pub fn t_s(&self) -> f64 {
+        self.sim.time_s()
+    }
+
+    /// Truth planar pose.
+    pub fn truth(&self) -> Pose2 {
+        Pose2::from_isometry3(&self.sim.truth_pose())
+    }
+
+    /// One simulator step: sensors into the agent, the agent's command into the plant.
+    /// `override_cmd` replaces the agent's command (teach drives by teleop through the agent's
+    /// own teleop path instead, so this is only for tests).
+    pub fn step(&mut self) -> StepEvents {
+        let out = self.sim.step(SIM_DT_S, self.cmd.v_mps, self.cmd.omega_rps);
+        let mut ev = StepEvents::default();
+        if let Some(o) = out.odom {
+            self.agent.on_odom(o);
+        }
+        for s in &out.gnss {
+            self.agent.on_gnss(s);
+        }
+        if let Some(scan) = &out.scan {
+            let t0 = Instant::now();
+            self.agent.on_scan(scan);
+            self.scan.add(t0.elapsed().as_secs_f64() * 1e3);
+            ev.scan = true;
+        }
+        self.collisions += out.collisions.len() as u32;
+        ev.collisions = out.collisions.len() as u32;
+        let t = self.sim.time_s();
+        if t + 1e-9 >= self.next_control_s {
+            self.next_control_s += CONTROL_DT_S;
+            let t0 = Instant::now();
+            if self.agent.plan_if_due(t) {
+                self.plan.add(t0.elapsed().as_secs_f64() * 1e3);
+            }
+            self.cmd = self.agent.control(t);
+            ev.control = true;
+        }
+        let p = self.sim.truth_pose().translation.vector;
+        let d = (p.x - self.last_truth.0).hypot(p.y - self.last_truth.1);
+        self.driven_m += d;
+        self.last_truth = (p.x, p.y);
+        if self.trajectory.last().is_none_or(|q| (q.0 - p.x).hypot(q.1 - p.y) >= 0.5) {
+            self.trajectory.push((p.x, p.y));
+        }
+        ev
+    }
+
+    /// The command currently applied to the plant.
+    pub fn cmd(&self) -> Cmd {
+        self.cmd
+    }
+}
+
+/// What one [`Rig::step`] did.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StepEvents {
+    /// A scan was processed.
+    pub scan: bool,
+    /// The control loop ran.
+    pub control: bool,
+    /// Collisions in this step.
+    pub collisions: u32,
+}
+
+/// Runs a goal mission headless to its end.
+pub fn run_goal(scenario: &sim::Scenario, cfg: AgentConfig, target: GoalTarget, opts: &HeadlessOptions) -> anyhow::Result<MissionReport> {
+    let mut rig = Rig::new(scenario, cfg, opts, "sim")?;
+    let wall = Instant::now();
+    // Let the first scans arrive so the map frame is anchored before the goal is converted.
+    while rig.agent.scans() < 3 && rig.t_s() < 5.0 {
+        rig.step();
+    }
+    let goal = GoalCmd { goal_id: 1, target, tolerance_m: 0.0 };
+    if let Err(e) = rig.agent.on_goal(&goal) {
+        anyhow::bail!("{e}");
+    }
+    let goal_m = rig.agent.navigator().goal().map(|g| g.goal_map).unwrap_or_default();
+    let outcome = loop {
+        let ev = rig.step();
+        if ev.collisions > 0 && opts.stop_on_collision {
+            break "collision";
+        }
+        if !ev.control {
+            continue;
+        }
+        match rig.agent.navigator().state() {
+            MissionState::Reached => break "reached",
+            MissionState::NoPath if rig.agent.navigator().goal().is_none() => break "no_path",
+            _ => {}
+        }
+        if rig.t_s() > opts.timeout_s {
+            break "timeout";
+        }
+    };
+    // Let the robot come to rest so the final error is where it stopped.
+    for _ in 0..100 {
+        rig.step();
+    }
+    let truth = rig.truth();
+    let goal_now = rig.agent.navigator().goal().map(|g| g.goal_map).unwrap_or(goal_m);
+    Ok(MissionReport {
+        outcome: if rig.collisions > 0 { "collision".into() } else { outcome.into() },
+        final_error_m: (truth.x_m - goal_now.0).hypot(truth.y_m - goal_now.1),
+        time_s: rig.t_s(),
+        path_length_m: rig.driven_m,
+        collisions: rig.collisions,
+        replans: rig.agent.navigator().replans,
+        plan_ms_mean: rig.plan.mean(),
+        plan_ms_max: rig.plan.max,
+        reason: rig.agent.navigator().reason().to_string(),
+        goal_m: goal_now,
+        final_m: (truth.x_m, truth.y_m),
+        scan_ms_mean: rig.scan.mean(),
+        realtime_factor: rig.t_s() / wall.elapsed().as_secs_f64().max(1e-9),
+        slam_failures: rig.agent.status(rig.t_s()).slam.failures,
+        trajectory_m: rig.trajectory.clone(),
+    })
+}
+
+/// The report of a teach-and-repeat run (`robot-agent sim --headless --teach-repeat`).
+#[derive(Clone, Debug, Serialize)]
+pub struct TeachRepeatReport {
+    /// `reached`, `blocked`, `timeout` or `collision`.
+    pub outcome: String,
+    /// RMS lateral distance to the taught path on free stretches, metres.
+    pub tracking_rms_m: f64,
+    /// Worst lateral distance on free stretches, metres.
+    pub tracking_max_m: f64,
+    /// Detours spliced in.
+    pub detours: u32,
+    /// Per detour: distance along the route from the obstacle's far edge to the rejoin point, metres.
+    pub rejoin_distance_m: Vec<f64>,
+    /// Collisions (truth).
+    pub collisions: u32,
+    /// Distance from the taught start (home) at the end, metres.
+    pub final_error_m: f64,
+    /// Taught waypoints.
+    pub waypoints: usize,
+    /// Taught route length, metres.
+    pub route_length_m: f64,
+    /// Simulated time of the return, seconds.
+    pub time_s: f64,
+}
+
+/// Teach along the scenario's teach path by teleop, add obstacles, return home along the route.
+pub fn run_teach_repeat(
+    scenario: &sim::Scenario,
+    cfg: AgentConfig,
+    obstacles: Option<&ObstacleFile>,
+    opts: &HeadlessOptions,
+) -> anyhow::Result<TeachRepeatReport> {
+    let teach = scenario
+        .teach
+        .clone()
+        .ok_or_else(|| anyhow::anyhow!("scenario {} has no [teach] route", scenario.name))?;
+    let mut rig = Rig::new(scenario, cfg, opts, "sim")?;
+    while rig.agent.scans() < 3 {
+        rig.step();
+    }
+    rig.agent
+        .on_route(rig.t_s(), &RouteCmd::Record { name: "teach".into() })
+        .map_err(anyhow::Error::msg)?;
+    // The operator: a scripted driver on the truth pose, sent through the agent's teleop path
+    // exactly as the station's drive commands arrive.
+    let mut driver = sim::drive::PathDriver::new(&teach.points, teach.speed_mps.min(0.5));
+    let mut seq = 0u32;
+    let mut taught_truth: Vec<(f64, f64)> = Vec::new();
+    while !driver.is_done() {
+        let ev = rig.step();
+        if ev.control {
+            let (v, w) = driver.command(&rig.truth());
+            seq += 1;
+            rig.agent.on_drive(
+                rig.t_s(),
+                &common::msg::DriveCmd { seq, v_mps: v as f32, omega_rps: w as f32, deadman: true },
+            );
+            let p = rig.truth();
+            if taught_truth.last().is_none_or(|q| (q.0 - p.x_m).hypot(q.1 - p.y_m) >= 0.05) {
+                taught_truth.push((p.x_m, p.y_m));
+            }
+        }
+        if rig.t_s() > opts.timeout_s {
+            anyhow::bail!("teach drive did not finish within {} s", opts.timeout_s);
+        }
+    }
+    for _ in 0..50 {
+        rig.step();
+    }
+    rig.agent
+        .on_route(rig.t_s(), &RouteCmd::StopRecording)
+        .map_err(anyhow::Error::msg)?;
+    let route = rig
+        .agent
+        .take_recorded()
+        .ok_or_else(|| anyhow::anyhow!("no route recorded"))?;
+    let waypoints = route.points.len();
+    let route_length_m: f64 = route.points.windows(2).map(|w| (w[1].x_m - w[0].x_m).hypot(w[1].y_m - w[0].y_m)).sum();
+    let home = taught_truth.first().copied().unwrap_or_default();
+    if let Some(obs) = obstacles {
+        rig.sim.add_obstacles(&obs.obstacles());
+    }
+    let collisions_before = rig.collisions;
+    rig.agent
+        .on_route(rig.t_s(), &RouteCmd::Repeat { route: route.clone(), direction: RouteDirection::Reverse })
+        .map_err(anyhow::Error::msg)?;
+    let t_start = rig.t_s();
+    let mut lateral: Vec<(f64, (f64, f64))> = Vec::new();
+    let outcome = loop {
+        let ev = rig.step();
+        if ev.collisions > 0 && opts.stop_on_collision {
+            break "collision";
+        }
+        if ev.control {
+            let p = rig.truth();
+            lateral.push((distance_to_polyline(&taught_truth, (p.x_m, p.y_m)), (p.x_m, p.y_m)));
+            if rig.agent.mode() != Mode::Repeat {
+                break "reached";
+            }
+        }
+        if rig.t_s() - t_start > opts.timeout_s {
+            break "timeout";
+        }
+    };
+    for _ in 0..100 {
+        rig.step();
+    }
+    let detours = rig.agent.route_follower().map(|f| f.detours.clone()).unwrap_or_default();
+    // Free stretches: away from every obstacle that was added (their footprint plus 3 m).
+    let near_obstacle = |p: (f64, f64)| obstacles.is_some_and(|o| o.distance_to(p) < 3.0);
+    let free: Vec<f64> = lateral.iter().filter(|(_, p)| !near_obstacle(*p)).map(|(d, _)| *d).collect();
+    let rms = if free.is_empty() { 0.0 } else { (free.iter().map(|d| d * d).sum::<f64>() / free.len() as f64).sqrt() };
+    let max = free.iter().copied().fold(0.0, f64::max);
+    let rejoin_distance_m = detours
+        .iter()
+        .map(|d| obstacles.map_or(0.0, |o| o.distance_to(d.rejoin_m)))
+        .collect();
+    let truth = rig.truth();
+    Ok(TeachRepeatReport {
+        outcome: if rig.collisions > collisions_before { "collision".into() } else { outcome.into() },
+        tracking_rms_m: rms,
+        tracking_max_m: max,
+        detours: detours.len() as u32,
+        rejoin_distance_m,
+        collisions: rig.collisions - collisions_before,
+        final_error_m: (truth.x_m - home.0).hypot(truth.y_m - home.1),
+        waypoints,
+        route_length_m,
+        time_s: rig.t_s() - t_start,
+    })
+}
+
+/// Obstacles added to a world at run time (`--add-obstacles FILE`): the scenario's own tables.
+#[derive(Clone, Debug, Default, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObstacleFile {
+    /// Parked cars.
+    #[serde(default)]
+    pub car: Vec<sim::scenario::CarSpec>,
+    /// Boxes (debris).
+    #[serde(default, rename = "box")]
+    pub boxes: Vec<sim::scenario::BoxSpec>,
+    /// Walls; a fallen trunk is a low wall.
+    #[serde(default)]
+    pub wall: Vec<sim::scenario::WallSpec>,
+    /// Standing trees.
+    #[serde(default)]
+    pub tree: Vec<sim::scenario::TreeSpec>,
+    /// Poles.
+    #[serde(default)]
+    pub pole: Vec<sim::scenario::PoleSpec>,
+}
+
+impl ObstacleFile {
+    /// Reads an obstacle file.
+    pub fn load(path: &std::path::Path) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path)?;
+        Ok(toml::from_str(&text)?)
+    }
+
+    /// The obstacles for [`sim::Simulation::add_obstacles`].
+    pub fn obstacles(&self) -> Vec<sim::Obstacle> {
+        let mut v: Vec<sim::Obstacle> = self.car.iter().map(|c| sim::Obstacle::Car(*c)).collect();
+        v.extend(self.boxes.iter().map(|b| sim::Obstacle::Box(*b)));
+        v.extend(self.wall.iter().map(|w| sim::Obstacle::Wall(w.clone())));
+        v.extend(self.tree.iter().map(|t| sim::Obstacle::Tree(*t)));
+        v.extend(self.pole.iter().map(|p| sim::Obstacle::Pole(*p)));
+        v
+    }
+
+    /// Distance from `p` to the nearest obstacle's footprint (0 inside), metres.
+    pub fn distance_to(&self, p: (f64, f64)) -> f64 {
+        // Distance to a rotated rectangle given by centre, size and heading.
+        let rect = |cx: f64, cy: f64, len: f64, wid: f64, yaw_deg: f64| {
+            let (s, co) = yaw_deg.to_radians().sin_cos();
+            let (dx, dy) = (p.0 - cx, p.1 - cy);
+            let (lx, ly) = (co * dx + s * dy, -s * dx + co * dy);
+            ((lx.abs() - len / 2.0).max(0.0)).hypot((ly.abs() - wid / 2.0).max(0.0))
+        };
+        let mut d = f64::INFINITY;
+        for c in &self.car {
+            d = d.min(rect(c.x_m, c.y_m, c.length_m, c.width_m, c.yaw_deg));
+        }
+        for b in &self.boxes {
+            let r = &b.rect;
+            d = d.min(rect(r.center_m[0], r.center_m[1], r.size_m[0], r.size_m[1], r.yaw_deg));
+        }
+        for w in &self.wall {
+            let line: Vec<(f64, f64)> = w.points.iter().map(|q| (q[0], q[1])).collect();
+            d = d.min((distance_to_polyline(&line, p) - w.thickness_m / 2.0).max(0.0));
+        }
+        for t in &self.tree {
+            d = d.min(((p.0 - t.x_m).hypot(p.1 - t.y_m) - t.trunk_radius_m).max(0.0));
+        }
+        for q in &self.pole {
+            d = d.min(((p.0 - q.x_m).hypot(p.1 - q.y_m) - q.radius_m).max(0.0));
+        }
+        d
+    }
+}
+
+/// Distance from `p` to a polyline, metres.
+pub fn distance_to_polyline(line: &[(f64, f64)], p: (f64, f64)) -> f64 {
+    if line.len() == 1 {
+        return (line[0].0 - p.0).hypot(line[0].1 - p.1);
+    }
+    line.windows(2)
+        .map(|w| {
+            let (a, b) = (w[0], w[1]);
+            let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+            let len2 = dx * dx + dy * dy;
+            let t = if len2 > 0.0 { (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / len2).clamp(0.0, 1.0) } else { 0.0 };
+            (a.0 + t * dx - p.0).hypot(a.1 + t * dy - p.1)
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn polyline_distance() {
+        let l = [(0.0, 0.0), (10.0, 0.0), (10.0, 10.0)];
+        assert!((distance_to_polyline(&l, (5.0, 1.0)) - 1.0).abs() < 1e-12);
+        assert!((distance_to_polyline(&l, (11.0, 5.0)) - 1.0).abs() < 1e-12);
+        assert!((distance_to_polyline(&l, (-3.0, -4.0)) - 5.0).abs() < 1e-12);
+    }
+}
+
+#[cfg(test)]
+mod scenario_tests {
+    use super::*;
+
+    /// A 40 x 30 m field with a crate across the straight line to the goal.
+    pub(super) const FIELD: &str = r#"
+name = "field"
+datum = { lat_deg = 48.0, lon_deg = 11.0, h_m = 500.0 }
+extent = { x_min_m = -10.0, x_max_m = 30.0, y_min_m = -15.0, y_max_m = 15.0 }
+terrain = { undulation_amplitude_m = 0.05, grass_amplitude_m = 0.02 }
+start = [{ x_m = 0.0, y_m = 0.0, yaw_deg = 0.0 }]
+[[box]]
+rect = { center_m = [8.0, 0.0], size_m = [1.0, 3.0] }
+height_m = 0.8
+[[tree]]
+x_m = 5.0
+y_m = 9.0
+[[tree]]
+x_m = 15.0
+y_m = -9.0
+[[tree]]
+x_m = 24.0
+y_m = 7.0
+[[pole]]
+x_m = 12.0
+y_m = 5.0
+[[pole]]
+x_m = 20.0
+y_m = -4.0
+[[wall]]
+points = [[-8.0, -12.0], [28.0, -12.0]]
+height_m = 1.5
+"#;
+
+    #[test]
+    fn drives_around_a_crate_to_a_map_goal() {
+        let scenario = sim::Scenario::from_toml_str(FIELD, "<field>").unwrap();
+        let rep = run_goal(
+            &scenario,
+            AgentConfig::default(),
+            GoalTarget::Map { x_m: 16.0, y_m: 0.0 },
+            &HeadlessOptions { timeout_s: 120.0, ..HeadlessOptions::default() },
+        )
+        .unwrap();
+        eprintln!("{}", serde_json::to_string(&rep).unwrap());
+        assert_eq!(rep.outcome, "reached", "{rep:?}");
+        assert_eq!(rep.collisions, 0);
+        assert!(rep.final_error_m < 0.5, "{}", rep.final_error_m);
+        assert!(rep.path_length_m > 16.3, "went around the crate: {}", rep.path_length_m);
+    }
+}
+
+#[cfg(test)]
+mod debug_tests {
+    use super::*;
+    #[test]
+    #[ignore]
+    fn debug_drift() {
+        let scenario = sim::Scenario::from_toml_str(super::scenario_tests::FIELD, "<field>").unwrap();
+        let mut rig = Rig::new(&scenario, AgentConfig::default(), &HeadlessOptions::default(), "dbg").unwrap();
+        let mut k = 0;
+        while rig.t_s() < 20.0 {
+            rig.cmd = Cmd { v_mps: 0.5, omega_rps: 0.05 };
+            let ev = rig.sim.step(SIM_DT_S, 0.5, 0.05);
+            if let Some(o) = ev.odom { rig.agent.on_odom(o); }
+            for s in &ev.gnss { rig.agent.on_gnss(s); }
+            if let Some(scan) = &ev.scan {
+                rig.agent.on_scan(scan);
+                k += 1;
+                if k % 10 == 0 {
+                    let t = rig.truth();
+                    let e = rig.agent.pose_now().unwrap().planar;
+                    let st = rig.agent.status(rig.t_s());
+                    eprintln!("t {:.1} truth ({:.2},{:.2},{:.1}) est ({:.2},{:.2},{:.1}) slam {:?} frame {:?} odom {:?}", rig.t_s(), t.x_m, t.y_m, t.yaw_rad.to_degrees(), e.x_m, e.y_m, e.yaw_rad.to_degrees(), st.slam, rig.agent.map_frame(), ev.odom.map(|o| o.pose_odom));
+                }
+            }
+        }
+    }
+}
