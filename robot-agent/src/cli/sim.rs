@@ -21,7 +21,7 @@ pub struct SimArgs {
     /// Scenario TOML (`config/scenarios/park.toml`).
     #[arg(long)]
     pub scenario: Option<PathBuf>,
-    /// Run without the bus (required for now).
+    /// Run offline to completion and print a report (without it, the robot runs live on the bus).
     #[arg(long)]
     pub headless: bool,
     /// Simulated duration, seconds.
@@ -45,6 +45,9 @@ pub struct SimArgs {
     /// Simulation step, seconds.
     #[arg(long, default_value_t = 0.02)]
     pub dt: f64,
+    /// Missions and the live robot (`--goal`, `--goal-gnss`, `--teach-repeat`, `--robot`, `--connect`).
+    #[command(flatten)]
+    pub mission: super::mission::MissionArgs,
 }
 
 /// `robot-agent sim` sub-tools.
@@ -86,8 +89,15 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
     if let Some(SimTool::Render(r)) = &args.tool {
         return run_render(r);
     }
-    if !args.headless {
-        anyhow::bail!("robot-agent sim: live mode (on the bus) is not built yet; pass --headless");
+    if args.mission.is_mission() || !args.headless {
+        let path = args.scenario.as_ref().context("--scenario FILE is required")?;
+        let scenario = sim::Scenario::load(path)?;
+        if !args.headless {
+            anyhow::ensure!(!args.mission.is_mission(), "--goal/--goal-gnss/--teach-repeat need --headless (live robots take goals over the bus)");
+            let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+            return super::mission::run_live(&scenario, &name, &args.mission, args.seed);
+        }
+        return super::mission::run_headless(&scenario, &args.mission, args.seed);
     }
     run_headless(&args)
 }
