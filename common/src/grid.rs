@@ -385,7 +385,7 @@ pub mod samples {
         tile_with(|c, r, s| Cell {
             state: CellState::Traversable,
             cost: 0,
-            height_cm: 1200 + (c / 10) as i16 + (next(s) % 4 == 0) as i16,
+            height_cm: 1200 + (c / 10) as i16 + next(s).is_multiple_of(4) as i16,
             hits: 40 - (r / 4) as u8,
             stamp_s: 1_790_000_000 + (r as u32) / 8,
         })
@@ -410,7 +410,7 @@ pub mod samples {
             Cell {
                 state,
                 cost,
-                height_cm: 300 + if sidewalk { 12 } else { 0 } + (next(s) % 3 == 0) as i16,
+                height_cm: 300 + if sidewalk { 12 } else { 0 } + next(s).is_multiple_of(3) as i16,
                 hits: 30 - ((c + r) / 8) as u8,
                 stamp_s: 1_790_000_000 + ((c + r) / 6) as u32,
             }

@@ -105,7 +105,11 @@ pub fn lookahead_point(path: &[(f64, f64)], p: (f64, f64), r: f64) -> ((f64, f64
 fn seg_dist(a: (f64, f64), b: (f64, f64), p: (f64, f64)) -> f64 {
     let (dx, dy) = (b.0 - a.0, b.1 - a.1);
     let l2 = dx * dx + dy * dy;
-    let t = if l2 > 0.0 { (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / l2).clamp(0.0, 1.0) } else { 0.0 };
+    let t = if l2 > 0.0 {
+        (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / l2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
     (a.0 + t * dx - p.0).hypot(a.1 + t * dy - p.1)
 }
 
@@ -125,7 +129,12 @@ pub fn cross_track_m(path: &[(f64, f64)], p: (f64, f64)) -> f64 {
 }
 
 /// The speed that keeps `|omega| = |K_p v curvature| <= omega_max`.
-pub fn curvature_limited_speed(v_mps: f64, curvature_1pm: f64, k_p: f64, omega_max_rps: f64) -> f64 {
+pub fn curvature_limited_speed(
+    v_mps: f64,
+    curvature_1pm: f64,
+    k_p: f64,
+    omega_max_rps: f64,
+) -> f64 {
     let k = (k_p * curvature_1pm).abs();
     if k < 1e-9 {
         v_mps
@@ -148,7 +157,14 @@ impl Follower {
     /// The command to follow `path` (map frame, first point near the robot) from `pose`.
     /// `limit_mps` is the operator's speed limit, `clearance_m` the distance from the body to the
     /// nearest obstacle point; `to_end` makes the robot slow down to stop at the path's end.
-    pub fn command(&self, pose: &Pose2, path: &[(f64, f64)], limit_mps: f64, clearance_m: f64, to_end: bool) -> FollowerCmd {
+    pub fn command(
+        &self,
+        pose: &Pose2,
+        path: &[(f64, f64)],
+        limit_mps: f64,
+        clearance_m: f64,
+        to_end: bool,
+    ) -> FollowerCmd {
         let c = &self.cfg;
         if path.len() < 2 {
             return FollowerCmd::default();
@@ -161,7 +177,10 @@ impl Follower {
         let (dx, dy) = (target.0 - p.0, target.1 - p.1);
         let alpha = wrap_angle(dy.atan2(dx) - pose.yaw_rad);
         if alpha.abs() > c.rotate_in_place_rad {
-            return FollowerCmd { v_mps: 0.0, omega_rps: c.omega_max_rps * alpha.signum() };
+            return FollowerCmd {
+                v_mps: 0.0,
+                omega_rps: c.omega_max_rps * alpha.signum(),
+            };
         }
         let dist = dx.hypot(dy).max(1e-3);
         // Lateral offset of the target in the robot frame, and R = d_l^2 / (2 dy).
@@ -181,7 +200,10 @@ impl Follower {
             v = c.v_min_mps.min(limit_mps.max(0.0));
         }
         let omega = (c.k_p * v * curvature).clamp(-c.omega_max_rps, c.omega_max_rps);
-        FollowerCmd { v_mps: v, omega_rps: omega }
+        FollowerCmd {
+            v_mps: v,
+            omega_rps: omega,
+        }
     }
 }
 
@@ -193,7 +215,10 @@ mod tests {
         let mut max_err: f64 = 0.0;
         for _ in 0..steps {
             let c = f.command(&pose, path, 1.0, f64::INFINITY, true);
-            assert!(c.v_mps <= 0.5 + 1e-12 && c.omega_rps.abs() <= 0.3 + 1e-12, "limits: {c:?}");
+            assert!(
+                c.v_mps <= 0.5 + 1e-12 && c.omega_rps.abs() <= 0.3 + 1e-12,
+                "limits: {c:?}"
+            );
             pose = pose.integrate(c.v_mps, c.omega_rps, 0.05);
             max_err = max_err.max(cross_track_m(path, (pose.x_m, pose.y_m)).abs());
         }
@@ -205,7 +230,10 @@ mod tests {
         let f = Follower::new(Config::default());
         let path = [(0.0, 0.0), (30.0, 0.0)];
         let (end, _) = drive(&f, &path, Pose2::new(0.0, 0.5, 0.0), 1400);
-        assert!((end.x_m - 30.0).abs() < 0.1 && end.y_m.abs() < 0.03, "{end:?}");
+        assert!(
+            (end.x_m - 30.0).abs() < 0.1 && end.y_m.abs() < 0.03,
+            "{end:?}"
+        );
     }
 
     #[test]
@@ -225,7 +253,13 @@ mod tests {
     #[test]
     fn turns_in_place_when_the_path_is_behind() {
         let f = Follower::new(Config::default());
-        let c = f.command(&Pose2::new(0.0, 0.0, 0.0), &[(0.0, 0.0), (-5.0, 0.1)], 1.0, 9.0, true);
+        let c = f.command(
+            &Pose2::new(0.0, 0.0, 0.0),
+            &[(0.0, 0.0), (-5.0, 0.1)],
+            1.0,
+            9.0,
+            true,
+        );
         assert_eq!(c.v_mps, 0.0);
         assert!((c.omega_rps.abs() - 0.3).abs() < 1e-12);
     }

@@ -59,11 +59,17 @@ impl Default for SafetyVerdict {
 }
 
 /// Checks points given in the robot frame (`base_link`).
-pub fn check(cfg: &SafetyConfig, points_base: impl IntoIterator<Item = (f64, f64, f64)>) -> SafetyVerdict {
+pub fn check(
+    cfg: &SafetyConfig,
+    points_base: impl IntoIterator<Item = (f64, f64, f64)>,
+) -> SafetyVerdict {
     let (hl, hw) = (cfg.body_length_m / 2.0, cfg.body_width_m / 2.0);
     let mut v = SafetyVerdict::default();
     for (x, y, z) in points_base {
-        if !(x.is_finite() && y.is_finite() && z.is_finite()) || z < cfg.min_height_m || z > cfg.max_height_m {
+        if !(x.is_finite() && y.is_finite() && z.is_finite())
+            || z < cfg.min_height_m
+            || z > cfg.max_height_m
+        {
             continue;
         }
         let ex = (x.abs() - hl).max(0.0);
@@ -90,7 +96,9 @@ mod tests {
     #[test]
     fn stops_for_points_ahead_only_in_the_height_band() {
         let c = SafetyConfig::default();
-        let wall: Vec<_> = (0..10).map(|i| (0.65, -0.3 + f64::from(i) * 0.06, 0.5)).collect();
+        let wall: Vec<_> = (0..10)
+            .map(|i| (0.65, -0.3 + f64::from(i) * 0.06, 0.5))
+            .collect();
         let v = check(&c, wall.clone());
         assert!(v.stop && (v.clearance_m - 0.15).abs() < 1e-9);
         let far: Vec<_> = wall.iter().map(|p| (1.5, p.1, p.2)).collect();

@@ -60,8 +60,14 @@ pub struct AgentConfig {
 
 impl Default for AgentConfig {
     fn default() -> Self {
-        Self::from_parts(sim::RobotProfile::default(), slam::Config::default(), mapping::Config::default(),
-            planning::PlannerConfig::default(), control::Config::default(), MissionFile::default())
+        Self::from_parts(
+            sim::RobotProfile::default(),
+            slam::Config::default(),
+            mapping::Config::default(),
+            planning::PlannerConfig::default(),
+            control::Config::default(),
+            MissionFile::default(),
+        )
     }
 }
 
@@ -87,7 +93,10 @@ pub enum ConfigError {
     },
 }
 
-fn load<T: serde::de::DeserializeOwned + Default>(dir: &Path, name: &str) -> Result<T, ConfigError> {
+fn load<T: serde::de::DeserializeOwned + Default>(
+    dir: &Path,
+    name: &str,
+) -> Result<T, ConfigError> {
     let path = dir.join(name);
     if !path.exists() {
         return Ok(T::default());
@@ -106,7 +115,9 @@ fn load<T: serde::de::DeserializeOwned + Default>(dir: &Path, name: &str) -> Res
 pub fn default_config_dir() -> PathBuf {
     let candidates = [
         std::env::current_dir().ok(),
-        std::env::current_exe().ok().and_then(|e| e.parent().map(Path::to_path_buf)),
+        std::env::current_exe()
+            .ok()
+            .and_then(|e| e.parent().map(Path::to_path_buf)),
     ];
     for start in candidates.into_iter().flatten() {
         for dir in start.ancestors() {

@@ -18,8 +18,8 @@ use common::geo::LocalFrame;
 use common::geom::Pose2;
 use common::grid::{Lattice, Tile};
 use common::msg::{
-    Datum, DriveCmd, GoalCmd, GoalTarget, MapFrame, MissionState, Mode, Pose, Route, RouteCmd, RouteDirection,
-    RouteProgress, SlamHealth, Status,
+    Datum, DriveCmd, GoalCmd, GoalTarget, MapFrame, MissionState, Mode, Pose, Route, RouteCmd,
+    RouteDirection, RouteProgress, SlamHealth, Status,
 };
 pub use config::AgentConfig;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
@@ -111,8 +111,14 @@ struct Anchor {
 
 impl Agent {
     /// A new agent for one session.
-    pub fn new(cfg: AgentConfig, robot: &str, session_id: &str, start_unix_ms: u64) -> Result<Self, String> {
-        let mapper = mapping::Mapper::new(cfg.mapper.clone()).map_err(|e| format!("mapper config: {e}"))?;
+    pub fn new(
+        cfg: AgentConfig,
+        robot: &str,
+        session_id: &str,
+        start_unix_ms: u64,
+    ) -> Result<Self, String> {
+        let mapper =
+            mapping::Mapper::new(cfg.mapper.clone()).map_err(|e| format!("mapper config: {e}"))?;
         Ok(Self {
             slam: slam::Slam::new(cfg.slam.clone()),
             mapper,
@@ -134,7 +140,10 @@ impl Agent {
             pending_tiles: Vec::new(),
             path_dirty: false,
             recorded: None,
-            slam_health: SlamHealth { ok: true, ..SlamHealth::default() },
+            slam_health: SlamHealth {
+                ok: true,
+                ..SlamHealth::default()
+            },
             last_error: None,
             commands_refused: 0,
             scans: 0,
@@ -220,7 +229,9 @@ impl Agent {
 
     /// The map frame's anchoring, once the first scan has arrived.
     pub fn map_frame(&self) -> Option<(MapFrame, Option<Datum>)> {
-        self.anchor.as_ref().map(|a| (a.frame, a.local.as_ref().map(|l| l.datum())))
+        self.anchor
+            .as_ref()
+            .map(|a| (a.frame, a.local.as_ref().map(|l| l.datum())))
     }
 
     /// Processes one LiDAR scan: SLAM, mapping, safety, path check.
@@ -247,7 +258,11 @@ impl Agent {
             failures: self.slam_health.failures + u32::from(d.fell_back_to_prior),
         };
         rep.slam_failed = d.fell_back_to_prior;
-        let map_from_slam = self.anchor.as_ref().map(|a| a.map_from_slam).unwrap_or_else(Isometry3::identity);
+        let map_from_slam = self
+            .anchor
+            .as_ref()
+            .map(|a| a.map_from_slam)
+            .unwrap_or_else(Isometry3::identity);
         let pose = PoseMap::from_iso(map_from_slam * out.pose_map_base);
         self.at_scan = Some((pose, None));
         self.map_from_odom = out.pose_map_odom.map(|m| map_from_slam * m);
@@ -260,7 +275,10 @@ impl Agent {
             z_m: pose.iso.translation.vector.z,
             yaw_rad: pose.planar.yaw_rad,
         };
-        match self.mapper.update_scan(scan, &pose_map_lidar, &robot, scan.stamp_s) {
+        match self
+            .mapper
+            .update_scan(scan, &pose_map_lidar, &robot, scan.stamp_s)
+        {
             Ok(u) => {
                 rep.classified_cells = u.classified_cells;
                 self.pending_tiles.extend(u.tiles);
@@ -271,10 +289,14 @@ impl Agent {
 
         // Safety stop on the raw sweep, in base_link.
         let base_from_lidar = self.slam_base_from_lidar();
-        self.safety = control::safety::check(&self.cfg.control.safety, scan.points.iter().map(|p| {
-            let q = base_from_lidar * nalgebra::Point3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z));
-            (q.x, q.y, q.z)
-        }));
+        self.safety = control::safety::check(
+            &self.cfg.control.safety,
+            scan.points.iter().map(|p| {
+                let q = base_from_lidar
+                    * nalgebra::Point3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z));
+                (q.x, q.y, q.z)
+            }),
+        );
         self.safety_t_s = scan.stamp_s;
 
         // A grid change on the path asks for a replan now.
@@ -290,7 +312,10 @@ impl Agent {
         let s = &self.cfg.slam.sensor;
         let [x, y, z] = s.lidar_xyz_m;
         let [r, p, yw] = s.lidar_rpy_rad;
-        Isometry3::from_parts(Translation3::new(x, y, z), UnitQuaternion::from_euler_angles(r, p, yw))
+        Isometry3::from_parts(
+            Translation3::new(x, y, z),
+            UnitQuaternion::from_euler_angles(r, p, yw),
+        )
     }
 
     /// The pose now: `map<-base = map<-odom * odom<-base` with the newest odometry, so the
@@ -331,8 +356,15 @@ impl Agent {
     /// The planning grid around a pose, from the mapper's cells.
     pub fn plan_grid(&self, pose: &Pose2) -> PlanGrid {
         let lattice = self.mapper.lattice();
-        let window = GridWindow::centred(lattice, pose.x_m, pose.y_m, self.cfg.planner.num_of_grid_cells);
-        let view = self.mapper.view(window.min_cx, window.min_cy, window.width, window.height);
+        let window = GridWindow::centred(
+            lattice,
+            pose.x_m,
+            pose.y_m,
+            self.cfg.planner.num_of_grid_cells,
+        );
+        let view = self
+            .mapper
+            .view(window.min_cx, window.min_cy, window.width, window.height);
         let rule = CostRule::from_config(&self.cfg.planner);
         let mut grid = PlanGrid::from_cells(&window, &rule, |cx, cy| view.get(cx, cy));
         // The robot's own footprint is driveable by definition (it stands there).
@@ -356,10 +388,25 @@ impl Agent {
         let pose = self.pose_now().map(|p| p.planar).unwrap_or_default();
         let (goal_map, gnss) = match g.target {
             GoalTarget::Map { x_m, y_m } => ((x_m, y_m), None),
-            GoalTarget::Gnss { lat_deg, lon_deg, h_m } => {
+            GoalTarget::Gnss {
+                lat_deg,
+                lon_deg,
+                h_m,
+            } => {
                 let local = self.anchor.as_ref().and_then(|a| a.local.as_ref());
-                let fix = self.gnss.fix(self.at_scan.map(|_| self.last_odom.map_or(0.0, |o| o.t_s)).unwrap_or(0.0));
-                match GnssGoal::new(lat_deg, lon_deg, h_m, local, (pose.x_m, pose.y_m), fix.as_ref()) {
+                let fix = self.gnss.fix(
+                    self.at_scan
+                        .map(|_| self.last_odom.map_or(0.0, |o| o.t_s))
+                        .unwrap_or(0.0),
+                );
+                match GnssGoal::new(
+                    lat_deg,
+                    lon_deg,
+                    h_m,
+                    local,
+                    (pose.x_m, pose.y_m),
+                    fix.as_ref(),
+                ) {
                     Ok(gg) => (gg.goal_map, Some(gg)),
                     Err(e) => return Err(self.refuse(format!("goal: {e}"))),
                 }
@@ -391,7 +438,11 @@ impl Agent {
 
     /// Stop now: ends any mission and teleop.
     pub fn on_stop(&mut self, reason: &str) {
-        self.nav.stop(if reason.is_empty() { "stopped by the operator" } else { reason });
+        self.nav.stop(if reason.is_empty() {
+            "stopped by the operator"
+        } else {
+            reason
+        });
         self.repeat = None;
         self.teleop = None;
         self.mode = Mode::Idle;
@@ -463,7 +514,10 @@ impl Agent {
                 self.teleop = None;
                 self.mode = Mode::Repeat;
                 self.repeat_paused = false;
-                self.repeat = Some((RouteFollower::new(self.cfg.repeat.clone(), &ordered, &pose), route.clone()));
+                self.repeat = Some((
+                    RouteFollower::new(self.cfg.repeat.clone(), &ordered, &pose),
+                    route.clone(),
+                ));
                 Ok(())
             }
             RouteCmd::Pause => {
@@ -486,9 +540,15 @@ impl Agent {
     /// The route's waypoints in this session's map frame: through lat/lon when both have a
     /// datum, as recorded when the route was taught in this session's frame.
     fn route_in_map(&mut self, route: &Route) -> Result<Vec<(f64, f64)>, String> {
-        let local = self.anchor.as_ref().and_then(|a| a.local.clone());
+        let local = self.anchor.as_ref().and_then(|a| a.local);
         let same_session = route.session_id == self.session_id;
-        match (local, route.points.iter().all(|p| p.lat_deg.is_some() && p.lon_deg.is_some())) {
+        match (
+            local,
+            route
+                .points
+                .iter()
+                .all(|p| p.lat_deg.is_some() && p.lon_deg.is_some()),
+        ) {
             (Some(l), true) if !same_session || route.datum != Some(l.datum()) => Ok(route
                 .points
                 .iter()
@@ -501,8 +561,11 @@ impl Agent {
                     (e.x, e.y)
                 })
                 .collect()),
-            _ if same_session || route.datum.is_none() => Ok(route.points.iter().map(|p| (p.x_m, p.y_m)).collect()),
-            _ => Err(self.refuse("route: recorded in another frame and this session has no datum".into())),
+            _ if same_session || route.datum.is_none() => {
+                Ok(route.points.iter().map(|p| (p.x_m, p.y_m)).collect())
+            }
+            _ => Err(self
+                .refuse("route: recorded in another frame and this session has no datum".into())),
         }
     }
 
@@ -523,7 +586,9 @@ impl Agent {
     /// Plans when due (goal) or runs a repeat cycle; returns true when a plan was computed (the
     /// caller times this call).
     pub fn plan_if_due(&mut self, t_s: f64) -> bool {
-        let Some(pose) = self.pose_now() else { return false };
+        let Some(pose) = self.pose_now() else {
+            return false;
+        };
         if self.mode == Mode::Repeat {
             if t_s - self.last_plan_t_s < 1.0 / self.cfg.planner.replan_rate_hz {
                 return false;
@@ -552,7 +617,9 @@ impl Agent {
 
     /// The command for now (call at the control rate).
     pub fn control(&mut self, t_s: f64) -> Cmd {
-        let Some(pose) = self.pose_now() else { return Cmd::default() };
+        let Some(pose) = self.pose_now() else {
+            return Cmd::default();
+        };
         let lla = self.lla_of(&pose);
         let ms = self.unix_ms(t_s);
         if let Some(rec) = self.recorder.as_mut() {
@@ -566,7 +633,10 @@ impl Agent {
                 Some((t, d)) if d.deadman && t_s - t <= self.cfg.deadman_s => {
                     let v = f64::from(d.v_mps).clamp(-self.speed_limit_mps, self.speed_limit_mps);
                     let v = if stop_ahead && v > 0.0 { 0.0 } else { v };
-                    Cmd { v_mps: v, omega_rps: f64::from(d.omega_rps) }
+                    Cmd {
+                        v_mps: v,
+                        omega_rps: f64::from(d.omega_rps),
+                    }
                 }
                 _ => Cmd::default(),
             },
@@ -574,8 +644,13 @@ impl Agent {
                 if self.nav.check_reached(&pose.planar) {
                     self.mode = Mode::Idle;
                 }
-                self.nav.set_blocked(self.nav.is_driving() && stop_ahead && self.safety.stop, "safety stop: obstacle close to the robot");
-                if self.nav.is_driving() || self.nav.state() == MissionState::Blocked && !self.nav.path().is_empty() {
+                self.nav.set_blocked(
+                    self.nav.is_driving() && stop_ahead && self.safety.stop,
+                    "safety stop: obstacle close to the robot",
+                );
+                if self.nav.is_driving()
+                    || self.nav.state() == MissionState::Blocked && !self.nav.path().is_empty()
+                {
                     let path = self.nav.path().to_vec();
                     self.follow(&pose.planar, &path, stop_ahead, true)
                 } else {
@@ -583,7 +658,11 @@ impl Agent {
                 }
             }
             Mode::Repeat if !self.repeat_paused => {
-                let path = self.repeat.as_ref().map(|(f, _)| f.path_ahead(&pose.planar)).unwrap_or_default();
+                let path = self
+                    .repeat
+                    .as_ref()
+                    .map(|(f, _)| f.path_ahead(&pose.planar))
+                    .unwrap_or_default();
                 self.follow(&pose.planar, &path, stop_ahead, true)
             }
             _ => Cmd::default(),
@@ -596,8 +675,17 @@ impl Agent {
         if path.len() < 2 {
             return Cmd::default();
         }
-        let c = self.follower.command(pose, path, self.speed_limit_mps, self.safety.clearance_m, to_end);
-        let mut cmd = Cmd { v_mps: c.v_mps, omega_rps: c.omega_rps };
+        let c = self.follower.command(
+            pose,
+            path,
+            self.speed_limit_mps,
+            self.safety.clearance_m,
+            to_end,
+        );
+        let mut cmd = Cmd {
+            v_mps: c.v_mps,
+            omega_rps: c.omega_rps,
+        };
         if stop_ahead && cmd.v_mps > 0.0 {
             // The safety stop overrides everything: stop, rotating in place is still allowed.
             cmd.v_mps = 0.0;
@@ -633,9 +721,15 @@ impl Agent {
         let pose = self.pose_now().map(|p| p.planar).unwrap_or_default();
         let (mission, reason) = match self.mode {
             Mode::Teleop => (MissionState::Driving, "teleop".to_string()),
-            Mode::Repeat if self.repeat_paused => (MissionState::Paused, "route repeat paused".into()),
+            Mode::Repeat if self.repeat_paused => {
+                (MissionState::Paused, "route repeat paused".into())
+            }
             Mode::Repeat => (
-                if self.safety.stop { MissionState::Blocked } else { MissionState::Driving },
+                if self.safety.stop {
+                    MissionState::Blocked
+                } else {
+                    MissionState::Driving
+                },
                 "repeating route".into(),
             ),
             _ => (self.nav.state(), self.nav.reason().to_string()),
@@ -650,7 +744,10 @@ impl Agent {
                 detours: f.detours.len() as u32,
             }
         });
-        let anchored_by_gnss = self.anchor.as_ref().is_some_and(|a| a.frame == MapFrame::EnuAtDatum);
+        let anchored_by_gnss = self
+            .anchor
+            .as_ref()
+            .is_some_and(|a| a.frame == MapFrame::EnuAtDatum);
         Status {
             t_unix_ms: self.unix_ms(t_s),
             mode: self.mode,

@@ -65,9 +65,12 @@ impl OrpheusUdp {
 
     /// Sends sentences to the navigation computer, one datagram each.
     pub fn send(&self, lines: &[String]) -> std::io::Result<()> {
-        let peer = self
-            .peer
-            .ok_or_else(|| std::io::Error::new(std::io::ErrorKind::NotConnected, "navigation computer not heard from yet"))?;
+        let peer = self.peer.ok_or_else(|| {
+            std::io::Error::new(
+                std::io::ErrorKind::NotConnected,
+                "navigation computer not heard from yet",
+            )
+        })?;
         for l in lines {
             self.socket.send_to(l.as_bytes(), peer)?;
         }
@@ -97,11 +100,19 @@ mod tests {
     fn drives_a_navigation_computer_over_udp() {
         let mut gw = OrpheusUdp::bind("127.0.0.1:0".parse().unwrap(), None).unwrap();
         let nc_sock = UdpSocket::bind("127.0.0.1:0").unwrap();
-        nc_sock.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+        nc_sock
+            .set_read_timeout(Some(Duration::from_secs(5)))
+            .unwrap();
         let gw_addr = gw.local_addr().unwrap();
         let mut nc = ReferenceNavComputer {
             route: (0..8)
-                .map(|i| RoutePoint { id: i, lat_deg: 50.0 + f64::from(i) * 1e-5, lon_deg: -14.4, lat_err_m: 0.02, lon_err_m: 0.03 })
+                .map(|i| RoutePoint {
+                    id: i,
+                    lat_deg: 50.0 + f64::from(i) * 1e-5,
+                    lon_deg: -14.4,
+                    lat_err_m: 0.02,
+                    lon_err_m: 0.03,
+                })
                 .collect(),
             speed_pct: 100,
         };
@@ -112,18 +123,28 @@ mod tests {
         for l in &lines {
             nc_sock.send_to(l.as_bytes(), gw_addr).unwrap();
         }
-        let two = format!("{}{}", common::geo::nmea::frame("NAWPT,1"), common::geo::nmea::frame("NAWPT,2"));
+        let two = format!(
+            "{}{}",
+            common::geo::nmea::frame("NAWPT,1"),
+            common::geo::nmea::frame("NAWPT,2")
+        );
         nc_sock.send_to(two.as_bytes(), gw_addr).unwrap();
         let events = poll_until(&mut gw, lines.len() + 2);
         assert_eq!(events.len(), lines.len() + 2);
         assert!(events.contains(&Ok(GatewayEvent::RouteComplete(8))));
-        assert!(matches!(events[9], Err(GatewayError::Malformed(_))), "bad checksum: {:?}", events[9]);
+        assert!(
+            matches!(events[9], Err(GatewayError::Malformed(_))),
+            "bad checksum: {:?}",
+            events[9]
+        );
         assert!(matches!(events[10], Err(GatewayError::UnknownId(99, 8))));
         assert_eq!(gw.gateway.reached(), Some(2));
         assert_eq!(gw.gateway.rejected, 2);
 
         // A detour replacing waypoints 3..5 by four points; the NC applies what arrives.
-        let detour: Vec<(f64, f64)> = (0..4).map(|k| (50.00003 + f64::from(k) * 5e-6, -14.39998)).collect();
+        let detour: Vec<(f64, f64)> = (0..4)
+            .map(|k| (50.00003 + f64::from(k) * 5e-6, -14.39998))
+            .collect();
         let edits = gw.gateway.splice(3, 5, &detour, 0.05).unwrap();
         gw.send(&edits).unwrap();
         gw.send(&[OrpheusGateway::speed_limit(40)]).unwrap();
@@ -139,6 +160,9 @@ mod tests {
             assert!((a.lat_deg - b.lat_deg).abs() < 1e-8);
         }
         assert!((nc.route[3].lat_deg - 50.00003).abs() < 1e-8);
-        assert!((nc.route[7].lat_deg - 50.00005).abs() < 1e-8, "old waypoint 5 follows the detour");
+        assert!(
+            (nc.route[7].lat_deg - 50.00005).abs() < 1e-8,
+            "old waypoint 5 follows the detour"
+        );
     }
 }

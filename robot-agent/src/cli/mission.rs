@@ -58,14 +58,22 @@ impl MissionArgs {
 fn numbers(s: &str, what: &str, n: std::ops::RangeInclusive<usize>) -> anyhow::Result<Vec<f64>> {
     let v: Result<Vec<f64>, _> = s.split(',').map(|t| t.trim().parse::<f64>()).collect();
     let v = v.with_context(|| format!("{what}: {s:?} is not a comma-separated list of numbers"))?;
-    anyhow::ensure!(n.contains(&v.len()), "{what}: expected {n:?} numbers, got {}", v.len());
-    anyhow::ensure!(v.iter().all(|x| x.is_finite()), "{what}: numbers must be finite");
+    anyhow::ensure!(
+        n.contains(&v.len()),
+        "{what}: expected {n:?} numbers, got {}",
+        v.len()
+    );
+    anyhow::ensure!(
+        v.iter().all(|x| x.is_finite()),
+        "{what}: numbers must be finite"
+    );
     Ok(v)
 }
 
 fn agent_config(args: &MissionArgs) -> anyhow::Result<AgentConfig> {
     let dir = args.config_dir.clone().unwrap_or_else(default_config_dir);
-    AgentConfig::load_dir(&dir).with_context(|| format!("loading configuration from {}", dir.display()))
+    AgentConfig::load_dir(&dir)
+        .with_context(|| format!("loading configuration from {}", dir.display()))
 }
 
 fn options(args: &MissionArgs, seed: u64) -> anyhow::Result<HeadlessOptions> {
@@ -76,7 +84,12 @@ fn options(args: &MissionArgs, seed: u64) -> anyhow::Result<HeadlessOptions> {
         }
         None => None,
     };
-    Ok(HeadlessOptions { seed, timeout_s: args.timeout, start, ..HeadlessOptions::default() })
+    Ok(HeadlessOptions {
+        seed,
+        timeout_s: args.timeout,
+        start,
+        ..HeadlessOptions::default()
+    })
 }
 
 /// Runs a headless mission and prints its JSON report (last line).
@@ -85,7 +98,10 @@ pub fn run_headless(scenario: &sim::Scenario, args: &MissionArgs, seed: u64) -> 
     let opts = options(args, seed)?;
     if args.teach_repeat {
         let obstacles = match &args.add_obstacles {
-            Some(p) => Some(run::ObstacleFile::load(p).with_context(|| format!("--add-obstacles {}", p.display()))?),
+            Some(p) => Some(
+                run::ObstacleFile::load(p)
+                    .with_context(|| format!("--add-obstacles {}", p.display()))?,
+            ),
             None => None,
         };
         let rep = run::run_teach_repeat(scenario, cfg, obstacles.as_ref(), &opts)?;
@@ -95,26 +111,46 @@ pub fn run_headless(scenario: &sim::Scenario, args: &MissionArgs, seed: u64) -> 
     let target = match (&args.goal, &args.goal_gnss) {
         (Some(g), None) => {
             let v = numbers(g, "--goal", 2..=2)?;
-            GoalTarget::Map { x_m: v[0], y_m: v[1] }
+            GoalTarget::Map {
+                x_m: v[0],
+                y_m: v[1],
+            }
         }
         (None, Some(g)) => {
             let v = numbers(g, "--goal-gnss", 2..=3)?;
-            anyhow::ensure!(v[0].abs() <= 90.0 && v[1].abs() <= 180.0, "--goal-gnss: latitude/longitude out of range");
-            GoalTarget::Gnss { lat_deg: v[0], lon_deg: v[1], h_m: v.get(2).copied() }
+            anyhow::ensure!(
+                v[0].abs() <= 90.0 && v[1].abs() <= 180.0,
+                "--goal-gnss: latitude/longitude out of range"
+            );
+            GoalTarget::Gnss {
+                lat_deg: v[0],
+                lon_deg: v[1],
+                h_m: v.get(2).copied(),
+            }
         }
         _ => anyhow::bail!("give one of --goal, --goal-gnss, --teach-repeat"),
     };
     let rep = run::run_goal(scenario, cfg, target, &opts)?;
     eprintln!(
         "{}: {:.1} s simulated, {:.1} m driven, {} replans ({:.2} ms mean), {:.1}x real time",
-        rep.outcome, rep.time_s, rep.path_length_m, rep.replans, rep.plan_ms_mean, rep.realtime_factor
+        rep.outcome,
+        rep.time_s,
+        rep.path_length_m,
+        rep.replans,
+        rep.plan_ms_mean,
+        rep.realtime_factor
     );
     println!("{}", serde_json::to_string(&rep)?);
     Ok(())
 }
 
 /// Runs the robot live on the bus until Ctrl-C.
-pub fn run_live(scenario: &sim::Scenario, scenario_name: &str, args: &MissionArgs, seed: u64) -> anyhow::Result<()> {
+pub fn run_live(
+    scenario: &sim::Scenario,
+    scenario_name: &str,
+    args: &MissionArgs,
+    seed: u64,
+) -> anyhow::Result<()> {
     let cfg = agent_config(args)?;
     let opts = options(args, seed)?;
     let robot = RobotId::new(args.robot.clone()).map_err(|e| anyhow::anyhow!("--robot: {e}"))?;

@@ -126,14 +126,17 @@ impl GnssTracker {
     pub fn yaw_enu_rad(&self, t_s: f64) -> Option<f64> {
         self.heading
             .filter(|(t, _)| t_s - t <= self.cfg.fix_timeout_s)
-            .map(|(_, yaw_cw_north_deg)| common::geom::wrap_angle((90.0 - yaw_cw_north_deg).to_radians()))
+            .map(|(_, yaw_cw_north_deg)| {
+                common::geom::wrap_angle((90.0 - yaw_cw_north_deg).to_radians())
+            })
     }
 
     /// True when an RTK fixed fix with enough satellites and a heading are both fresh: the map
     /// frame can be anchored as ENU at a datum and the initial pose taken from GNSS.
     pub fn can_anchor(&self, t_s: f64) -> bool {
         self.fix(t_s).is_some_and(|f| {
-            f.quality == common::geo::nmea::QUALITY_RTK_FIXED && f.satellites >= self.cfg.min_satellites_anchor
+            f.quality == common::geo::nmea::QUALITY_RTK_FIXED
+                && f.satellites >= self.cfg.min_satellites_anchor
         }) && self.yaw_enu_rad(t_s).is_some()
     }
 
@@ -148,7 +151,9 @@ impl GnssTracker {
 #[non_exhaustive]
 pub enum GnssGoalError {
     /// The map frame is SLAM-only.
-    #[error("GNSS goal refused: the map frame has no datum (no RTK fix and heading at session start)")]
+    #[error(
+        "GNSS goal refused: the map frame has no datum (no RTK fix and heading at session start)"
+    )]
     NoDatum,
     /// Latitude/longitude out of range or not finite.
     #[error("GNSS goal refused: lat {0}, lon {1} out of range")]
@@ -178,7 +183,11 @@ impl GnssGoal {
         robot_map: (f64, f64),
         fix: Option<&Fix>,
     ) -> Result<Self, GnssGoalError> {
-        if !(lat_deg.is_finite() && lon_deg.is_finite() && lat_deg.abs() <= 90.0 && lon_deg.abs() <= 180.0) {
+        if !(lat_deg.is_finite()
+            && lon_deg.is_finite()
+            && lat_deg.abs() <= 90.0
+            && lon_deg.abs() <= 180.0)
+        {
             return Err(GnssGoalError::OutOfRange(lat_deg, lon_deg));
         }
         let frame = datum.ok_or(GnssGoalError::NoDatum)?;
@@ -260,7 +269,11 @@ mod tests {
         assert!((t.fix(0.5).unwrap().lla.h_m - 547.0).abs() < 1e-9);
         // North (0 deg clockwise from north) is +90 deg counter-clockwise from east.
         assert!((t.yaw_enu_rad(0.5).unwrap() - std::f64::consts::FRAC_PI_2).abs() < 1e-9);
-        assert_eq!(t.fix_state(2.0), FixState::NoFix, "stale fix counts as lost");
+        assert_eq!(
+            t.fix_state(2.0),
+            FixState::NoFix,
+            "stale fix counts as lost"
+        );
         // A corrupt sentence is counted and leaves the fix alone.
         let mut bad = gga(48.2, 11.5, 4);
         bad.replace_range(10..11, "9");
@@ -274,7 +287,11 @@ mod tests {
 
     #[test]
     fn gnss_goal_follows_the_fix_until_close() {
-        let datum = Datum { lat_deg: 48.0, lon_deg: 11.0, h_m: 500.0 };
+        let datum = Datum {
+            lat_deg: 48.0,
+            lon_deg: 11.0,
+            h_m: 500.0,
+        };
         let frame = LocalFrame::new(datum);
         let target = frame.enu_to_lla(&Vector3::new(30.0, 40.0, 0.0));
         assert_eq!(
@@ -282,14 +299,30 @@ mod tests {
             Err(GnssGoalError::NoDatum)
         );
         assert!(GnssGoal::new(95.0, 0.0, None, Some(&frame), (0.0, 0.0), None).is_err());
-        let mut g = GnssGoal::new(target.lat_deg, target.lon_deg, Some(500.0), Some(&frame), (0.0, 0.0), None).unwrap();
+        let mut g = GnssGoal::new(
+            target.lat_deg,
+            target.lon_deg,
+            Some(500.0),
+            Some(&frame),
+            (0.0, 0.0),
+            None,
+        )
+        .unwrap();
         assert!((g.goal_map.0 - 30.0).abs() < 1e-6 && (g.goal_map.1 - 40.0).abs() < 1e-6);
         // SLAM drifted: the robot believes it is at (1, 0) while GNSS says (0, 0): the goal moves with it.
-        let fix = Fix { t_s: 0.0, lla: datum, quality: 4, satellites: 12 };
+        let fix = Fix {
+            t_s: 0.0,
+            lla: datum,
+            quality: 4,
+            satellites: 12,
+        };
         g.refresh((1.0, 0.0), &fix, 5.0);
         assert!((g.goal_map.0 - 31.0).abs() < 1e-3 && (g.goal_map.1 - 40.0).abs() < 1e-3);
         // Within 5 m the goal freezes.
-        let near = Fix { lla: frame.enu_to_lla(&Vector3::new(28.0, 38.0, 0.0)), ..fix };
+        let near = Fix {
+            lla: frame.enu_to_lla(&Vector3::new(28.0, 38.0, 0.0)),
+            ..fix
+        };
         g.refresh((29.0, 38.0), &near, 5.0);
         assert!(g.frozen);
         let before = g.goal_map;

@@ -166,11 +166,15 @@ impl Navigator {
     pub fn wants_replan(&self, t_s: f64) -> bool {
         let active = matches!(
             self.state,
-            MissionState::Planning | MissionState::Driving | MissionState::Blocked | MissionState::NoPath
+            MissionState::Planning
+                | MissionState::Driving
+                | MissionState::Blocked
+                | MissionState::NoPath
         );
         active
             && self.goal.is_some()
-            && (self.path_invalid || t_s - self.last_plan_t_s >= 1.0 / self.planner_cfg.replan_rate_hz)
+            && (self.path_invalid
+                || t_s - self.last_plan_t_s >= 1.0 / self.planner_cfg.replan_rate_hz)
     }
 
     /// Checks the path ahead of the robot against a new grid; a blocked stretch asks for a replan.
@@ -220,19 +224,33 @@ impl Navigator {
             Ok(c) => c,
             Err(e) => return self.fail_no_path(t_s, e.to_string(), true),
         };
-        let goal_c = match goal_cell(grid, robot, goal.goal_map, self.planner_cfg.goal_search_radius_m) {
+        let goal_c = match goal_cell(
+            grid,
+            robot,
+            goal.goal_map,
+            self.planner_cfg.goal_search_radius_m,
+        ) {
             Ok(g) => g,
-            Err(e @ GoalError::NoFreeCellNearGoal { .. }) => return self.fail_no_path(t_s, e.to_string(), false),
+            Err(e @ GoalError::NoFreeCellNearGoal { .. }) => {
+                return self.fail_no_path(t_s, e.to_string(), false)
+            }
             Err(e) => return self.fail_no_path(t_s, e.to_string(), false),
         };
         let reach = self.floods.check(grid, start, goal_c.cell);
         if reach.reachability == Reachability::NoPath {
-            return self.fail_no_path(t_s, "goal is cut off from the robot (reachability floods)".into(), false);
+            return self.fail_no_path(
+                t_s,
+                "goal is cut off from the robot (reachability floods)".into(),
+                false,
+            );
         }
         let limits = SearchLimits {
             max_expansions: Some(self.planner_cfg.max_expansions),
         };
-        match self.planner.plan_with(grid, start, goal_c.cell, limits, &mut || false) {
+        match self
+            .planner
+            .plan_with(grid, start, goal_c.cell, limits, &mut || false)
+        {
             Ok(p) => {
                 let poly = cells_to_polyline(grid, &p.cells);
                 let mut smooth = smooth_polyline(
@@ -255,7 +273,9 @@ impl Navigator {
                 self.no_path_since_s = None;
                 self.state = MissionState::Driving;
                 self.reason = match reach.reachability {
-                    Reachability::MayExistBeyondMap => "heading for the map edge towards the goal".into(),
+                    Reachability::MayExistBeyondMap => {
+                        "heading for the map edge towards the goal".into()
+                    }
                     _ => format!("path {:.1} m", p.length_m),
                 };
                 self.report(polyline_length_m(&self.path), p.expansions)
@@ -320,7 +340,12 @@ mod tests {
     }
 
     fn goal(x: f64, y: f64) -> Goal {
-        Goal { id: 1, goal_map: (x, y), tolerance_m: 0.0, gnss: None }
+        Goal {
+            id: 1,
+            goal_map: (x, y),
+            tolerance_m: 0.0,
+            gnss: None,
+        }
     }
 
     #[test]
@@ -332,7 +357,11 @@ mod tests {
         let r = n.replan(0.0, &pose, &grid_with_wall(true));
         assert_eq!(r.state, MissionState::Driving);
         // Straight line 16 m; through the gap at (10, 16-18) at least 2 x 16.1 m.
-        assert!(r.length_m > 32.0 && r.length_m < 37.0, "detour through the gap: {}", r.length_m);
+        assert!(
+            r.length_m > 32.0 && r.length_m < 37.0,
+            "detour through the gap: {}",
+            r.length_m
+        );
         assert_eq!(n.path()[0], (2.0, 2.0));
         assert_eq!(*n.path().last().unwrap(), (18.0, 2.0));
         assert!(!n.wants_replan(0.1));
@@ -379,6 +408,9 @@ mod tests {
         assert!(n.check_path(&g, &pose));
         assert!(n.wants_replan(0.01));
         n.replan(0.01, &pose, &g);
-        assert!(n.path().iter().all(|p| planning::smooth::point_free(&g, *p)));
+        assert!(n
+            .path()
+            .iter()
+            .all(|p| planning::smooth::point_free(&g, *p)));
     }
 }

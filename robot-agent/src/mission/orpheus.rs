@@ -114,8 +114,12 @@ impl OrpheusGateway {
                 self.reached = Some(id);
                 Ok(GatewayEvent::Reached(id))
             }
-            OrpheusMessage::Remove(_) | OrpheusMessage::RemoveEnd => Err(GatewayError::Unexpected("$CAREM")),
-            OrpheusMessage::Insert(_) | OrpheusMessage::InsertEnd => Err(GatewayError::Unexpected("$CAINS")),
+            OrpheusMessage::Remove(_) | OrpheusMessage::RemoveEnd => {
+                Err(GatewayError::Unexpected("$CAREM"))
+            }
+            OrpheusMessage::Insert(_) | OrpheusMessage::InsertEnd => {
+                Err(GatewayError::Unexpected("$CAINS"))
+            }
             OrpheusMessage::SpeedLimit(_) => Err(GatewayError::Unexpected("$CASPD")),
             _ => Err(GatewayError::Unexpected("message")),
         }
@@ -124,7 +128,13 @@ impl OrpheusGateway {
     /// Replaces route points `from..to` (ids, end exclusive) by `detour` (lat, lon degrees) and
     /// returns the sentences that make the NC do the same. Position errors of inserted points are
     /// `err_m`.
-    pub fn splice(&mut self, from: u32, to: u32, detour: &[(f64, f64)], err_m: f64) -> Result<Vec<String>, GatewayError> {
+    pub fn splice(
+        &mut self,
+        from: u32,
+        to: u32,
+        detour: &[(f64, f64)],
+        err_m: f64,
+    ) -> Result<Vec<String>, GatewayError> {
         let n = self.route.len();
         if from > to || to as usize > n {
             return Err(GatewayError::UnknownId(to, n));
@@ -190,7 +200,9 @@ impl ReferenceNavComputer {
             OrpheusMessage::Remove(id) if (id as usize) < self.route.len() => {
                 self.route.remove(id as usize);
             }
-            OrpheusMessage::Insert(p) if (p.id as usize) <= self.route.len() => self.route.insert(p.id as usize, p),
+            OrpheusMessage::Insert(p) if (p.id as usize) <= self.route.len() => {
+                self.route.insert(p.id as usize, p)
+            }
             OrpheusMessage::RemoveEnd | OrpheusMessage::InsertEnd => {}
             OrpheusMessage::SpeedLimit(p) => self.speed_pct = p,
             other => return Err(format!("unexpected {other:?}")),
@@ -230,10 +242,14 @@ mod tests {
         }
         assert!(gw.has_route());
         assert_eq!(gw.route().len(), 10);
-        assert_eq!(gw.on_line("$NAWPT,3*").is_err(), true, "malformed");
+        assert!(gw.on_line("$NAWPT,3*").is_err(), "malformed");
         let wpt = common::geo::nmea::frame("NAWPT,3");
         assert_eq!(gw.on_line(&wpt).unwrap(), GatewayEvent::Reached(3));
-        let detour = [(48.00004, 11.00001), (48.00005, 11.00002), (48.00006, 11.00001)];
+        let detour = [
+            (48.00004, 11.00001),
+            (48.00005, 11.00002),
+            (48.00006, 11.00001),
+        ];
         let edits = gw.splice(4, 6, &detour, 0.05).unwrap();
         for e in &edits {
             nc.apply(e).unwrap();
@@ -244,7 +260,10 @@ mod tests {
             assert!((a.lat_deg - b.lat_deg).abs() < 1e-8 && (a.lon_deg - b.lon_deg).abs() < 1e-8);
         }
         assert!((nc.route[5].lat_deg - 48.00005).abs() < 1e-8);
-        assert!((nc.route[7].lat_deg - 48.00006).abs() < 1e-9, "old id 6 follows the detour");
+        assert!(
+            (nc.route[7].lat_deg - 48.00006).abs() < 1e-9,
+            "old id 6 follows the detour"
+        );
     }
 
     #[test]
@@ -253,11 +272,28 @@ mod tests {
         let mut bad = common::geo::nmea::frame("NAWPT,1");
         bad.replace_range(bad.len() - 4..bad.len() - 2, "00");
         assert!(matches!(gw.on_line(&bad), Err(GatewayError::Malformed(_))));
-        assert!(matches!(gw.on_line(&common::geo::nmea::frame("NAWPT,1")), Err(GatewayError::UnknownId(1, 0))));
-        assert!(matches!(gw.on_line(&common::geo::nmea::frame("CAREM,1")), Err(GatewayError::Unexpected(_))));
-        let p = |id: u32| format_orpheus(&OrpheusMessage::RoutePoint(RoutePoint { id, lat_deg: 1.0, lon_deg: 2.0, lat_err_m: 0.1, lon_err_m: 0.1 }));
+        assert!(matches!(
+            gw.on_line(&common::geo::nmea::frame("NAWPT,1")),
+            Err(GatewayError::UnknownId(1, 0))
+        ));
+        assert!(matches!(
+            gw.on_line(&common::geo::nmea::frame("CAREM,1")),
+            Err(GatewayError::Unexpected(_))
+        ));
+        let p = |id: u32| {
+            format_orpheus(&OrpheusMessage::RoutePoint(RoutePoint {
+                id,
+                lat_deg: 1.0,
+                lon_deg: 2.0,
+                lat_err_m: 0.1,
+                lon_err_m: 0.1,
+            }))
+        };
         gw.on_line(&p(0)).unwrap();
-        assert!(matches!(gw.on_line(&p(2)), Err(GatewayError::OutOfSequence { got: 2, want: 1 })));
+        assert!(matches!(
+            gw.on_line(&p(2)),
+            Err(GatewayError::OutOfSequence { got: 2, want: 1 })
+        ));
         assert_eq!(gw.rejected, 4);
         assert!(gw.last_error.as_deref().unwrap().contains("sequence"));
     }

@@ -110,7 +110,10 @@ impl RouteFollower {
         let wps: Vec<Waypoint> = route_m
             .iter()
             .enumerate()
-            .map(|(i, p)| Waypoint { p: *p, taught: Some(i) })
+            .map(|(i, p)| Waypoint {
+                p: *p,
+                taught: Some(i),
+            })
             .collect();
         let next = nearest(&wps, (robot.x_m, robot.y_m));
         Self {
@@ -126,7 +129,11 @@ impl RouteFollower {
     /// The remaining waypoints, robot first: what the path follower tracks.
     pub fn path_ahead(&self, robot: &Pose2) -> Vec<(f64, f64)> {
         std::iter::once((robot.x_m, robot.y_m))
-            .chain(self.wps[self.next.min(self.wps.len())..].iter().map(|w| w.p))
+            .chain(
+                self.wps[self.next.min(self.wps.len())..]
+                    .iter()
+                    .map(|w| w.p),
+            )
             .collect()
     }
 
@@ -154,7 +161,9 @@ impl RouteFollower {
         if self.next >= self.wps.len() {
             return RepeatState::Finished;
         }
-        if self.next == self.wps.len() - 1 && dist(r, self.wps[self.next].p) <= self.cfg.goal_tolerance_m {
+        if self.next == self.wps.len() - 1
+            && dist(r, self.wps[self.next].p) <= self.cfg.goal_tolerance_m
+        {
             self.next = self.wps.len();
             return RepeatState::Finished;
         }
@@ -178,7 +187,9 @@ impl RouteFollower {
                 let q = self.wps[self.next + 1].p;
                 let (dx, dy) = (q.0 - p.0, q.1 - p.1);
                 let len2 = dx * dx + dy * dy;
-                len2 > 1e-9 && ((r.0 - p.0) * dx + (r.1 - p.1) * dy) / len2 > 0.0 && dist(r, p) < 2.0 * self.cfg.reached_radius_m.max(1.0)
+                len2 > 1e-9
+                    && ((r.0 - p.0) * dx + (r.1 - p.1) * dy) / len2 > 0.0
+                    && dist(r, p) < 2.0 * self.cfg.reached_radius_m.max(1.0)
             };
             if reached || passed {
                 self.next += 1;
@@ -195,7 +206,10 @@ impl RouteFollower {
             along += dist(self.wps[j - 1].p, self.wps[j].p);
             let d = dist(r, self.wps[j].p);
             // Only a point that is near in space but far along the route is redundant.
-            if d <= self.cfg.skip_radius_m && along > d + 2.0 * self.cfg.skip_radius_m && segment_free(grid, r, self.wps[j].p) {
+            if d <= self.cfg.skip_radius_m
+                && along > d + 2.0 * self.cfg.skip_radius_m
+                && segment_free(grid, r, self.wps[j].p)
+            {
                 best = Some(j);
             }
             if along > self.cfg.rejoin_search_m * 3.0 {
@@ -244,7 +258,12 @@ impl RouteFollower {
         None
     }
 
-    fn splice_detour(&mut self, r: (f64, f64), blocked: usize, grid: &PlanGrid) -> Result<(), String> {
+    fn splice_detour(
+        &mut self,
+        r: (f64, f64),
+        blocked: usize,
+        grid: &PlanGrid,
+    ) -> Result<(), String> {
         let start = grid
             .world_to_cell(r.0, r.1)
             .filter(|c| grid.is_free(i64::from(c.x), i64::from(c.y)))
@@ -275,9 +294,16 @@ impl RouteFollower {
             if j + 1 < self.wps.len() && !segment_free(grid, p, self.wps[j + 1].p) {
                 continue;
             }
-            let Some(goal) = grid.world_to_cell(p.0, p.1) else { continue };
-            let limits = SearchLimits { max_expansions: Some(200_000) };
-            let Ok(path) = self.planner.plan_with(grid, start, goal, limits, &mut || false) else {
+            let Some(goal) = grid.world_to_cell(p.0, p.1) else {
+                continue;
+            };
+            let limits = SearchLimits {
+                max_expansions: Some(200_000),
+            };
+            let Ok(path) = self
+                .planner
+                .plan_with(grid, start, goal, limits, &mut || false)
+            else {
                 continue;
             };
             let detour = resample(grid, &path.cells, self.cfg.waypoint_spacing_m, r, p);
@@ -339,7 +365,13 @@ fn push_free(grid: &PlanGrid, p: (f64, f64), max_m: f64) -> Option<(f64, f64)> {
 
 /// Cell path -> waypoints every `spacing_m`, starting at `from` and ending at `to` exactly; the
 /// corners of the A* path are kept so the detour never cuts through a blocked cell.
-fn resample(grid: &PlanGrid, cells: &[CellXY], spacing_m: f64, from: (f64, f64), to: (f64, f64)) -> Vec<(f64, f64)> {
+fn resample(
+    grid: &PlanGrid,
+    cells: &[CellXY],
+    spacing_m: f64,
+    from: (f64, f64),
+    to: (f64, f64),
+) -> Vec<(f64, f64)> {
     let mut pts: Vec<(f64, f64)> = cells.iter().map(|c| grid.cell_center_m(*c)).collect();
     if let Some(f) = pts.first_mut() {
         *f = from;
@@ -394,7 +426,10 @@ mod tests {
         let mut f = RouteFollower::new(RepeatConfig::default(), &route, &robot);
         assert_eq!(f.update(&robot, &empty_grid()), RepeatState::Following);
         let ahead = f.path_ahead(&robot);
-        assert!(ahead[1..].iter().all(|p| (p.1 - 10.0).abs() < 1e-12), "no point moved");
+        assert!(
+            ahead[1..].iter().all(|p| (p.1 - 10.0).abs() < 1e-12),
+            "no point moved"
+        );
         assert!(f.detours.is_empty());
         let (_, n, left) = f.progress(&robot);
         assert_eq!(n, 31);
@@ -412,9 +447,16 @@ mod tests {
         assert_eq!(f.update(&robot, &g), RepeatState::Following);
         assert_eq!(f.detours.len(), 1);
         let d = &f.detours[0];
-        assert!(d.rejoin_m.0 > 18.0 && d.rejoin_m.0 <= 20.0, "rejoins within 2 m past the obstacle: {:?}", d.rejoin_m);
+        assert!(
+            d.rejoin_m.0 > 18.0 && d.rejoin_m.0 <= 20.0,
+            "rejoins within 2 m past the obstacle: {:?}",
+            d.rejoin_m
+        );
         let ahead = f.path_ahead(&robot);
-        assert!(ahead.windows(2).all(|w| segment_free(&g, w[0], w[1])), "detour is free: {ahead:?}");
+        assert!(
+            ahead.windows(2).all(|w| segment_free(&g, w[0], w[1])),
+            "detour is free: {ahead:?}"
+        );
         // After the rejoin point the taught route continues unchanged.
         let k = ahead.iter().position(|p| *p == d.rejoin_m).unwrap();
         assert!(ahead[k..].iter().all(|p| (p.1 - 10.0).abs() < 1e-12));
@@ -440,10 +482,25 @@ mod tests {
         // A bush whose inflation just covers the route at x = 12.
         block_rect(&mut g, 11.8, 10.0, 12.2, 11.0);
         let robot = Pose2::new(9.0, 10.0, 0.0);
-        let mut f = RouteFollower::new(RepeatConfig { check_ahead_m: 2.0, ..RepeatConfig::default() }, &route, &robot);
+        let mut f = RouteFollower::new(
+            RepeatConfig {
+                check_ahead_m: 2.0,
+                ..RepeatConfig::default()
+            },
+            &route,
+            &robot,
+        );
         f.update(&robot, &g);
-        let p = f.waypoints().iter().find(|w| w.taught == Some(7)).unwrap().p;
-        assert!(point_free(&g, p) && p.1 < 10.0 && p.1 > 9.5, "pushed just below the bush: {p:?}");
+        let p = f
+            .waypoints()
+            .iter()
+            .find(|w| w.taught == Some(7))
+            .unwrap()
+            .p;
+        assert!(
+            point_free(&g, p) && p.1 < 10.0 && p.1 > 9.5,
+            "pushed just below the bush: {p:?}"
+        );
     }
 
     #[test]
@@ -456,7 +513,11 @@ mod tests {
         let mut f = RouteFollower::new(RepeatConfig::default(), &route, &robot);
         f.update(&robot, &empty_grid());
         let ahead = f.path_ahead(&robot);
-        assert!(ahead[1].0 > 15.0 && (ahead[1].1 - 10.0).abs() < 0.2, "loop skipped: {:?}", &ahead[..3]);
+        assert!(
+            ahead[1].0 > 15.0 && (ahead[1].1 - 10.0).abs() < 0.2,
+            "loop skipped: {:?}",
+            &ahead[..3]
+        );
     }
 
     #[test]

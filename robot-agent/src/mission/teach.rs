@@ -63,8 +63,11 @@ impl RouteRecorder {
             None => true,
             Some(last) => {
                 let d = last.distance_to(&pose_map);
-                let turn = wrap_angle(pose_map.yaw_rad - last.yaw_rad).abs().to_degrees();
-                d >= self.cfg.spacing_m || (d >= self.cfg.min_spacing_m && turn >= self.cfg.heading_change_deg)
+                let turn = wrap_angle(pose_map.yaw_rad - last.yaw_rad)
+                    .abs()
+                    .to_degrees();
+                d >= self.cfg.spacing_m
+                    || (d >= self.cfg.min_spacing_m && turn >= self.cfg.heading_change_deg)
             }
         };
         if take {
@@ -74,7 +77,12 @@ impl RouteRecorder {
     }
 
     /// Ends the recording; the final pose is always the last waypoint.
-    pub fn finish(mut self, pose_map: Pose2, lla: Option<(f64, f64, f64)>, t_unix_ms: u64) -> Vec<RoutePoint> {
+    pub fn finish(
+        mut self,
+        pose_map: Pose2,
+        lla: Option<(f64, f64, f64)>,
+        t_unix_ms: u64,
+    ) -> Vec<RoutePoint> {
         if self.last.is_none_or(|l| l.distance_to(&pose_map) > 1e-3) {
             self.push(pose_map, lla, t_unix_ms);
         }

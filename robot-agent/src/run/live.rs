@@ -61,7 +61,11 @@ pub fn run_live(
                     robot: robot.to_string(),
                     start_unix_ms: rig.agent.unix_ms(0.0),
                     frame,
-                    datum: if frame == MapFrame::EnuAtDatum { datum } else { None },
+                    datum: if frame == MapFrame::EnuAtDatum {
+                        datum
+                    } else {
+                        None
+                    },
                     cell_size_m: lattice.cell_size_m,
                     tile_cells: lattice.tile_cells,
                     source: format!("sim:{scenario_name}"),

@@ -91,7 +91,11 @@ impl Stat {
         self.max = self.max.max(ms);
     }
     fn mean(&self) -> f64 {
-        if self.n == 0 { 0.0 } else { self.sum / f64::from(self.n) }
+        if self.n == 0 {
+            0.0
+        } else {
+            self.sum / f64::from(self.n)
+        }
     }
 }
 
@@ -115,9 +119,17 @@ pub struct Rig {
 impl Rig {
     /// Builds the simulator and the agent. The agent shares the scenario's datum so that
     /// several robots in one world share one map frame (what an operator does by setting it).
-    pub fn new(scenario: &sim::Scenario, mut cfg: AgentConfig, opts: &HeadlessOptions, robot: &str) -> anyhow::Result<Self> {
+    pub fn new(
+        scenario: &sim::Scenario,
+        mut cfg: AgentConfig,
+        opts: &HeadlessOptions,
+        robot: &str,
+    ) -> anyhow::Result<Self> {
         cfg.datum = Some(scenario.datum());
-        let mut sim_cfg = sim::SimConfig { seed: opts.seed, ..sim::SimConfig::default() };
+        let mut sim_cfg = sim::SimConfig {
+            seed: opts.seed,
+            ..sim::SimConfig::default()
+        };
         if let Some(s) = opts.start {
             sim_cfg.start = Some(s);
         }
@@ -188,7 +200,11 @@ impl Rig {
         let d = (p.x - self.last_truth.0).hypot(p.y - self.last_truth.1);
         self.driven_m += d;
         self.last_truth = (p.x, p.y);
-        if self.trajectory.last().is_none_or(|q| (q.0 - p.x).hypot(q.1 - p.y) >= 0.5) {
+        if self
+            .trajectory
+            .last()
+            .is_none_or(|q| (q.0 - p.x).hypot(q.1 - p.y) >= 0.5)
+        {
             self.trajectory.push((p.x, p.y));
         }
         ev
@@ -212,18 +228,32 @@ pub struct StepEvents {
 }
 
 /// Runs a goal mission headless to its end.
-pub fn run_goal(scenario: &sim::Scenario, cfg: AgentConfig, target: GoalTarget, opts: &HeadlessOptions) -> anyhow::Result<MissionReport> {
+pub fn run_goal(
+    scenario: &sim::Scenario,
+    cfg: AgentConfig,
+    target: GoalTarget,
+    opts: &HeadlessOptions,
+) -> anyhow::Result<MissionReport> {
     let mut rig = Rig::new(scenario, cfg, opts, "sim")?;
     let wall = Instant::now();
     // Let the first scans arrive so the map frame is anchored before the goal is converted.
     while rig.agent.scans() < 3 && rig.t_s() < 5.0 {
         rig.step();
     }
-    let goal = GoalCmd { goal_id: 1, target, tolerance_m: 0.0 };
+    let goal = GoalCmd {
+        goal_id: 1,
+        target,
+        tolerance_m: 0.0,
+    };
     if let Err(e) = rig.agent.on_goal(&goal) {
         anyhow::bail!("{e}");
     }
-    let goal_m = rig.agent.navigator().goal().map(|g| g.goal_map).unwrap_or_default();
+    let goal_m = rig
+        .agent
+        .navigator()
+        .goal()
+        .map(|g| g.goal_map)
+        .unwrap_or_default();
     let outcome = loop {
         let ev = rig.step();
         if ev.collisions > 0 && opts.stop_on_collision {
@@ -246,9 +276,18 @@ pub fn run_goal(scenario: &sim::Scenario, cfg: AgentConfig, target: GoalTarget, 
         rig.step();
     }
     let truth = rig.truth();
-    let goal_now = rig.agent.navigator().goal().map(|g| g.goal_map).unwrap_or(goal_m);
+    let goal_now = rig
+        .agent
+        .navigator()
+        .goal()
+        .map(|g| g.goal_map)
+        .unwrap_or(goal_m);
     Ok(MissionReport {
-        outcome: if rig.collisions > 0 { "collision".into() } else { outcome.into() },
+        outcome: if rig.collisions > 0 {
+            "collision".into()
+        } else {
+            outcome.into()
+        },
         final_error_m: (truth.x_m - goal_now.0).hypot(truth.y_m - goal_now.1),
         time_s: rig.t_s(),
         path_length_m: rig.driven_m,
@@ -307,7 +346,12 @@ pub fn run_teach_repeat(
         rig.step();
     }
     rig.agent
-        .on_route(rig.t_s(), &RouteCmd::Record { name: "teach".into() })
+        .on_route(
+            rig.t_s(),
+            &RouteCmd::Record {
+                name: "teach".into(),
+            },
+        )
         .map_err(anyhow::Error::msg)?;
     // The operator: a scripted driver on the truth pose, sent through the agent's teleop path
     // exactly as the station's drive commands arrive.
@@ -321,10 +365,18 @@ pub fn run_teach_repeat(
             seq += 1;
             rig.agent.on_drive(
                 rig.t_s(),
-                &common::msg::DriveCmd { seq, v_mps: v as f32, omega_rps: w as f32, deadman: true },
+                &common::msg::DriveCmd {
+                    seq,
+                    v_mps: v as f32,
+                    omega_rps: w as f32,
+                    deadman: true,
+                },
             );
             let p = rig.truth();
-            if taught_truth.last().is_none_or(|q| (q.0 - p.x_m).hypot(q.1 - p.y_m) >= 0.05) {
+            if taught_truth
+                .last()
+                .is_none_or(|q| (q.0 - p.x_m).hypot(q.1 - p.y_m) >= 0.05)
+            {
                 taught_truth.push((p.x_m, p.y_m));
             }
         }
@@ -343,14 +395,24 @@ pub fn run_teach_repeat(
         .take_recorded()
         .ok_or_else(|| anyhow::anyhow!("no route recorded"))?;
     let waypoints = route.points.len();
-    let route_length_m: f64 = route.points.windows(2).map(|w| (w[1].x_m - w[0].x_m).hypot(w[1].y_m - w[0].y_m)).sum();
+    let route_length_m: f64 = route
+        .points
+        .windows(2)
+        .map(|w| (w[1].x_m - w[0].x_m).hypot(w[1].y_m - w[0].y_m))
+        .sum();
     let home = taught_truth.first().copied().unwrap_or_default();
     if let Some(obs) = obstacles {
         rig.sim.add_obstacles(&obs.obstacles());
     }
     let collisions_before = rig.collisions;
     rig.agent
-        .on_route(rig.t_s(), &RouteCmd::Repeat { route: route.clone(), direction: RouteDirection::Reverse })
+        .on_route(
+            rig.t_s(),
+            &RouteCmd::Repeat {
+                route: route.clone(),
+                direction: RouteDirection::Reverse,
+            },
+        )
         .map_err(anyhow::Error::msg)?;
     let t_start = rig.t_s();
     let mut lateral: Vec<(f64, (f64, f64))> = Vec::new();
@@ -361,7 +423,10 @@ pub fn run_teach_repeat(
         }
         if ev.control {
             let p = rig.truth();
-            lateral.push((distance_to_polyline(&taught_truth, (p.x_m, p.y_m)), (p.x_m, p.y_m)));
+            lateral.push((
+                distance_to_polyline(&taught_truth, (p.x_m, p.y_m)),
+                (p.x_m, p.y_m),
+            ));
             if rig.agent.mode() != Mode::Repeat {
                 break "reached";
             }
@@ -373,11 +438,23 @@ pub fn run_teach_repeat(
     for _ in 0..100 {
         rig.step();
     }
-    let detours = rig.agent.route_follower().map(|f| f.detours.clone()).unwrap_or_default();
+    let detours = rig
+        .agent
+        .route_follower()
+        .map(|f| f.detours.clone())
+        .unwrap_or_default();
     // Free stretches: away from every obstacle that was added (their footprint plus 3 m).
     let near_obstacle = |p: (f64, f64)| obstacles.is_some_and(|o| o.distance_to(p) < 3.0);
-    let free: Vec<f64> = lateral.iter().filter(|(_, p)| !near_obstacle(*p)).map(|(d, _)| *d).collect();
-    let rms = if free.is_empty() { 0.0 } else { (free.iter().map(|d| d * d).sum::<f64>() / free.len() as f64).sqrt() };
+    let free: Vec<f64> = lateral
+        .iter()
+        .filter(|(_, p)| !near_obstacle(*p))
+        .map(|(d, _)| *d)
+        .collect();
+    let rms = if free.is_empty() {
+        0.0
+    } else {
+        (free.iter().map(|d| d * d).sum::<f64>() / free.len() as f64).sqrt()
+    };
     let max = free.iter().copied().fold(0.0, f64::max);
     let rejoin_distance_m = detours
         .iter()
@@ -385,7 +462,11 @@ pub fn run_teach_repeat(
         .collect();
     let truth = rig.truth();
     Ok(TeachRepeatReport {
-        outcome: if rig.collisions > collisions_before { "collision".into() } else { outcome.into() },
+        outcome: if rig.collisions > collisions_before {
+            "collision".into()
+        } else {
+            outcome.into()
+        },
         tracking_rms_m: rms,
         tracking_max_m: max,
         detours: detours.len() as u32,
@@ -451,7 +532,13 @@ impl ObstacleFile {
         }
         for b in &self.boxes {
             let r = &b.rect;
-            d = d.min(rect(r.center_m[0], r.center_m[1], r.size_m[0], r.size_m[1], r.yaw_deg));
+            d = d.min(rect(
+                r.center_m[0],
+                r.center_m[1],
+                r.size_m[0],
+                r.size_m[1],
+                r.yaw_deg,
+            ));
         }
         for w in &self.wall {
             let line: Vec<(f64, f64)> = w.points.iter().map(|q| (q[0], q[1])).collect();
@@ -477,7 +564,11 @@ pub fn distance_to_polyline(line: &[(f64, f64)], p: (f64, f64)) -> f64 {
             let (a, b) = (w[0], w[1]);
             let (dx, dy) = (b.0 - a.0, b.1 - a.1);
             let len2 = dx * dx + dy * dy;
-            let t = if len2 > 0.0 { (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / len2).clamp(0.0, 1.0) } else { 0.0 };
+            let t = if len2 > 0.0 {
+                (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / len2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
             (a.0 + t * dx - p.0).hypot(a.1 + t * dy - p.1)
         })
         .fold(f64::INFINITY, f64::min)
@@ -536,15 +627,25 @@ height_m = 1.5
         let rep = run_goal(
             &scenario,
             AgentConfig::default(),
-            GoalTarget::Map { x_m: 16.0, y_m: 0.0 },
-            &HeadlessOptions { timeout_s: 120.0, ..HeadlessOptions::default() },
+            GoalTarget::Map {
+                x_m: 16.0,
+                y_m: 0.0,
+            },
+            &HeadlessOptions {
+                timeout_s: 120.0,
+                ..HeadlessOptions::default()
+            },
         )
         .unwrap();
         eprintln!("{}", serde_json::to_string(&rep).unwrap());
         assert_eq!(rep.outcome, "reached", "{rep:?}");
         assert_eq!(rep.collisions, 0);
         assert!(rep.final_error_m < 0.5, "{}", rep.final_error_m);
-        assert!(rep.path_length_m > 16.3, "went around the crate: {}", rep.path_length_m);
+        assert!(
+            rep.path_length_m > 16.3,
+            "went around the crate: {}",
+            rep.path_length_m
+        );
     }
 }
 
@@ -554,14 +655,28 @@ mod debug_tests {
     #[test]
     #[ignore]
     fn debug_drift() {
-        let scenario = sim::Scenario::from_toml_str(super::scenario_tests::FIELD, "<field>").unwrap();
-        let mut rig = Rig::new(&scenario, AgentConfig::default(), &HeadlessOptions::default(), "dbg").unwrap();
+        let scenario =
+            sim::Scenario::from_toml_str(super::scenario_tests::FIELD, "<field>").unwrap();
+        let mut rig = Rig::new(
+            &scenario,
+            AgentConfig::default(),
+            &HeadlessOptions::default(),
+            "dbg",
+        )
+        .unwrap();
         let mut k = 0;
         while rig.t_s() < 20.0 {
-            rig.cmd = Cmd { v_mps: 0.5, omega_rps: 0.05 };
+            rig.cmd = Cmd {
+                v_mps: 0.5,
+                omega_rps: 0.05,
+            };
             let ev = rig.sim.step(SIM_DT_S, 0.5, 0.05);
-            if let Some(o) = ev.odom { rig.agent.on_odom(o); }
-            for s in &ev.gnss { rig.agent.on_gnss(s); }
+            if let Some(o) = ev.odom {
+                rig.agent.on_odom(o);
+            }
+            for s in &ev.gnss {
+                rig.agent.on_gnss(s);
+            }
             if let Some(scan) = &ev.scan {
                 rig.agent.on_scan(scan);
                 k += 1;
