@@ -99,6 +99,7 @@ pub struct Agent {
     start_unix_ms: u64,
     last_plan_t_s: f64,
     last_cmd: Cmd,
+    gnss_rejected: u32,
 }
 
 /// How the SLAM frame sits in the map frame.
@@ -152,6 +153,7 @@ impl Agent {
             start_unix_ms,
             last_plan_t_s: f64::NEG_INFINITY,
             last_cmd: Cmd::default(),
+            gnss_rejected: 0,
             cfg,
         })
     }
@@ -178,6 +180,7 @@ impl Agent {
             self.last_error = Some(format!("GNSS: {e}"));
             return;
         }
+        self.fuse_gnss(s.t_s);
         // Re-evaluate a GNSS goal with each new fix (methods.md §5).
         if let (Some(fix), Some(pose)) = (self.gnss.fix(s.t_s), self.at_scan.map(|a| a.0.planar)) {
             let freeze = self.cfg.gnss.goal_freeze_distance_m;
@@ -187,6 +190,48 @@ impl Agent {
                     goal.goal_map = g.goal_map;
                 }
             }
+        }
+    }
+
+    /// GNSS-aided localisation: each fresh RTK fixed fix pulls the SLAM frame's anchor a little
+    /// towards where GNSS puts the robot (a complementary filter), so SLAM drift stays bounded
+    /// by RTK accuracy while GNSS is available; on loss, SLAM and odometry carry on alone.
+    fn fuse_gnss(&mut self, t_s: f64) {
+        let cfg = &self.cfg.gnss;
+        let Some(fix) = self.gnss.fix(t_s) else { return };
+        // Once per fix (the sentence that brought it), RTK fixed only.
+        if fix.t_s != t_s || fix.quality != common::geo::nmea::QUALITY_RTK_FIXED || cfg.fusion_gain <= 0.0 {
+            return;
+        }
+        let (Some(anchor), Some(est)) = (self.anchor.as_ref(), self.pose_now()) else { return };
+        let Some(local) = anchor.local.as_ref() else { return };
+        let enu = local.lla_to_enu(&fix.lla);
+        let est_p = est.iso.translation.vector;
+        let ant = self.cfg.gnss_antenna_xyz_m;
+        let meas = enu - est.iso.rotation * Vector3::new(ant[0], ant[1], ant[2]);
+        let d = meas - est_p;
+        if d.xy().norm() > cfg.fusion_gate_m {
+            self.gnss_rejected += 1;
+            return;
+        }
+        let dyaw = self
+            .gnss
+            .yaw_enu_rad(t_s)
+            .map(|y| common::geom::wrap_angle(y - est.planar.yaw_rad))
+            .filter(|dy| dy.abs() < 10f64.to_radians())
+            .map_or(0.0, |dy| dy * cfg.heading_gain);
+        let k = cfg.fusion_gain;
+        // Rotate about the robot by dyaw, then move it by k * d.
+        let delta = Isometry3::from_parts(Translation3::from(est_p + d * k), UnitQuaternion::from_axis_angle(&Vector3::z_axis(), dyaw))
+            * Isometry3::from_parts(Translation3::from(-est_p), UnitQuaternion::identity());
+        if let Some(a) = self.anchor.as_mut() {
+            a.map_from_slam = delta * a.map_from_slam;
+        }
+        if let Some(m) = self.map_from_odom.as_mut() {
+            *m = delta * *m;
+        }
+        if let Some((p, _)) = self.at_scan.as_mut() {
+            *p = PoseMap::from_iso(delta * p.iso);
         }
     }
 

@@ -18,6 +18,13 @@ pub struct GnssConfig {
     pub min_satellites_anchor: u8,
     /// Forward offset of the GNSS antenna reference point from base_link, metres.
     pub antenna_x_m: f64,
+    /// Share of the GNSS-minus-SLAM position difference corrected per RTK fixed fix (0 = GNSS
+    /// only anchors the start; SLAM then drifts freely).
+    pub fusion_gain: f64,
+    /// Share of the dual-antenna heading difference corrected per fix.
+    pub heading_gain: f64,
+    /// A fix further than this from the SLAM pose is treated as an outlier, metres.
+    pub fusion_gate_m: f64,
 }
 
 impl Default for GnssConfig {
@@ -27,6 +34,9 @@ impl Default for GnssConfig {
             goal_freeze_distance_m: 5.0,
             min_satellites_anchor: 5,
             antenna_x_m: 0.0,
+            fusion_gain: 0.1,
+            heading_gain: 0.02,
+            fusion_gate_m: 3.0,
         }
     }
 }
