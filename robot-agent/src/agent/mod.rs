@@ -198,13 +198,22 @@ impl Agent {
     /// by RTK accuracy while GNSS is available; on loss, SLAM and odometry carry on alone.
     fn fuse_gnss(&mut self, t_s: f64) {
         let cfg = &self.cfg.gnss;
-        let Some(fix) = self.gnss.fix(t_s) else { return };
+        let Some(fix) = self.gnss.fix(t_s) else {
+            return;
+        };
         // Once per fix (the sentence that brought it), RTK fixed only.
-        if fix.t_s != t_s || fix.quality != common::geo::nmea::QUALITY_RTK_FIXED || cfg.fusion_gain <= 0.0 {
+        if fix.t_s != t_s
+            || fix.quality != common::geo::nmea::QUALITY_RTK_FIXED
+            || cfg.fusion_gain <= 0.0
+        {
             return;
         }
-        let (Some(anchor), Some(est)) = (self.anchor.as_ref(), self.pose_now()) else { return };
-        let Some(local) = anchor.local.as_ref() else { return };
+        let (Some(anchor), Some(est)) = (self.anchor.as_ref(), self.pose_now()) else {
+            return;
+        };
+        let Some(local) = anchor.local.as_ref() else {
+            return;
+        };
         let enu = local.lla_to_enu(&fix.lla);
         let est_p = est.iso.translation.vector;
         let ant = self.cfg.gnss_antenna_xyz_m;
@@ -222,8 +231,11 @@ impl Agent {
             .map_or(0.0, |dy| dy * cfg.heading_gain);
         let k = cfg.fusion_gain;
         // Rotate about the robot by dyaw, then move it by k * d.
-        let delta = Isometry3::from_parts(Translation3::from(est_p + d * k), UnitQuaternion::from_axis_angle(&Vector3::z_axis(), dyaw))
-            * Isometry3::from_parts(Translation3::from(-est_p), UnitQuaternion::identity());
+        let delta =
+            Isometry3::from_parts(
+                Translation3::from(est_p + d * k),
+                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), dyaw),
+            ) * Isometry3::from_parts(Translation3::from(-est_p), UnitQuaternion::identity());
         if let Some(a) = self.anchor.as_mut() {
             a.map_from_slam = delta * a.map_from_slam;
         }
@@ -412,10 +424,26 @@ impl Agent {
             .view(window.min_cx, window.min_cy, window.width, window.height);
         let rule = CostRule::from_config(&self.cfg.planner);
         let mut grid = PlanGrid::from_cells(&window, &rule, |cx, cy| view.get(cx, cy));
-        // The robot's own footprint is driveable by definition (it stands there).
-        if let Some(c) = grid.world_to_cell(pose.x_m, pose.y_m) {
-            if !grid.is_free(i64::from(c.x), i64::from(c.y)) {
-                grid.set(i64::from(c.x), i64::from(c.y), 0.0, false);
+        // The robot stands on its footprint, so those cells are driveable whatever inflation says
+        // (a walker passing close inflates the cells around the robot and would wall it in).
+        // Cells classified as obstacles themselves stay blocked.
+        let r_m = 0.5 * self.cfg.profile.length_m.max(self.cfg.profile.width_m);
+        let s = lattice.cell_size_f64();
+        let r_cells = (r_m / s).ceil() as i64;
+        let (rcx, rcy) = lattice.cell_of(pose.x_m, pose.y_m);
+        for cy in rcy - r_cells..=rcy + r_cells {
+            for cx in rcx - r_cells..=rcx + r_cells {
+                let (x, y) = lattice.cell_center_m(cx, cy);
+                if (x - pose.x_m).hypot(y - pose.y_m) > r_m + 0.5 * s {
+                    continue;
+                }
+                let (gx, gy) = (cx - window.min_cx, cy - window.min_cy);
+                if view.get(cx, cy).state != common::grid::CellState::Obstacle
+                    && !grid.is_free(gx, gy)
+                    && grid.contains(gx, gy)
+                {
+                    grid.set(gx, gy, 0.0, false);
+                }
             }
         }
         grid

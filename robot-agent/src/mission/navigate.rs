@@ -28,7 +28,7 @@ impl Default for NavConfig {
     fn default() -> Self {
         Self {
             goal_tolerance_m: 0.3,
-            no_path_give_up_s: 4.0,
+            no_path_give_up_s: 10.0,
         }
     }
 }
@@ -388,7 +388,7 @@ mod tests {
         assert_eq!(n.replan(0.0, &pose, &g).state, MissionState::NoPath);
         assert!(n.goal().is_some(), "still re-checking");
         assert!(n.wants_replan(0.5));
-        n.replan(5.0, &pose, &g);
+        n.replan(11.0, &pose, &g);
         assert_eq!(n.state(), MissionState::NoPath);
         assert!(n.goal().is_none(), "gave up");
         assert!(n.reason().contains("cut off"), "{}", n.reason());

@@ -1,0 +1,189 @@
+//! Scenario tests: the real `robot-agent` binary runs whole missions in the built-in world (SLAM,
+//! mapping, planning and control in the loop) and the outcome is judged against the simulator's
+//! truth (`robot-agent sim --headless --goal`'s JSON report).
+
+use serde_json::Value;
+use std::process::Command;
+use support::{bin, workspace_root};
+
+fn mission(scenario: &str, args: &[&str]) -> Value {
+    let out = Command::new(bin("robot-agent"))
+        .current_dir(workspace_root())
+        .args([
+            "sim",
+            "--scenario",
+            &format!("config/scenarios/{scenario}.toml"),
+            "--headless",
+        ])
+        .args(args)
+        .output()
+        .expect("run robot-agent");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "robot-agent failed: {}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let last = stdout.lines().last().expect("a report line");
+    let v: Value = serde_json::from_str(last).expect("JSON report");
+    eprintln!("{scenario} {args:?}: outcome {} final_error_m {} time_s {} collisions {} replans {} plan_ms_mean {}",
+        v["outcome"], v["final_error_m"], v["time_s"], v["collisions"], v["replans"], v["plan_ms_mean"]);
+    v
+}
+
+fn f(v: &Value, k: &str) -> f64 {
+    v[k].as_f64()
+        .unwrap_or_else(|| panic!("{k} missing in {v}"))
+}
+
+fn assert_reached(v: &Value) {
+    assert_eq!(v["outcome"], "reached", "{v}");
+    assert_eq!(v["collisions"], 0, "{v}");
+    assert!(
+        f(v, "final_error_m") <= 0.5,
+        "final error {}",
+        f(v, "final_error_m")
+    );
+}
+
+/// Park with 10 walkers on the paths: goals along and off the paths, three seeds.
+#[test]
+fn park_goals_are_reached_among_walkers_seed_1() {
+    assert_reached(&mission(
+        "park",
+        &["--goal", "-12,0", "--seed", "1", "--timeout", "150"],
+    ));
+}
+
+#[test]
+fn park_goals_are_reached_among_walkers_seed_2() {
+    assert_reached(&mission(
+        "park",
+        &["--goal", "-25,-12", "--seed", "2", "--timeout", "150"],
+    ));
+}
+
+#[test]
+fn park_goals_are_reached_among_walkers_seed_3() {
+    assert_reached(&mission(
+        "park",
+        &[
+            "--goal",
+            "-4,10",
+            "--start",
+            "-20,0,0",
+            "--seed",
+            "3",
+            "--timeout",
+            "150",
+        ],
+    ));
+}
+
+/// The sidewalk is behind a 15 cm curb (not climbable by the Husky); the only way up is the ramp at x = 40.
+#[test]
+fn street_goal_beyond_the_15cm_curb_takes_the_ramp() {
+    let v = mission(
+        "street",
+        &[
+            "--goal",
+            "44,-6.5",
+            "--start",
+            "30,-1,0",
+            "--timeout",
+            "150",
+        ],
+    );
+    assert_reached(&v);
+    let traj = v["trajectory_m"].as_array().unwrap();
+    let up = traj
+        .iter()
+        .map(|p| (p[0].as_f64().unwrap(), p[1].as_f64().unwrap()))
+        .find(|p| p.1 < -4.0)
+        .expect("the robot reached the sidewalk");
+    assert!(
+        (38.8..=41.2).contains(&up.0),
+        "climbed the curb at x = {:.2}, not on the ramp (39-41)",
+        up.0
+    );
+}
+
+/// Two platforms with no connection: the goal on the other one has no path; the robot stays up.
+#[test]
+fn platforms_goal_on_the_other_platform_is_no_path() {
+    let v = mission("platforms", &["--goal", "12,0", "--timeout", "120"]);
+    assert_eq!(v["outcome"], "no_path", "{v}");
+    assert_eq!(v["collisions"], 0, "{v}");
+    let x = v["final_m"][0].as_f64().unwrap();
+    let y = v["final_m"][1].as_f64().unwrap();
+    assert!(
+        (-17.0..=-7.0).contains(&x) && (-5.0..=5.0).contains(&y),
+        "stopped on its platform: ({x}, {y})"
+    );
+}
+
+/// A GNSS goal goes through the datum and ends where the equivalent map goal ends.
+#[test]
+fn park_gnss_goal_reaches_the_same_place_as_the_map_goal() {
+    // (-10, 0) in the park's map frame (robot-agent geo enu2lla 48.2082 16.3738 171 -10 0 0).
+    let g = mission(
+        "park",
+        &[
+            "--goal-gnss",
+            "48.20819999992128,16.37366545863909",
+            "--seed",
+            "4",
+            "--timeout",
+            "150",
+        ],
+    );
+    assert_reached(&g);
+    let (gx, gy) = (
+        g["goal_m"][0].as_f64().unwrap(),
+        g["goal_m"][1].as_f64().unwrap(),
+    );
+    assert!(
+        (gx + 10.0).abs() < 0.3 && gy.abs() < 0.3,
+        "GNSS goal placed at ({gx}, {gy})"
+    );
+    let (fx, fy) = (
+        g["final_m"][0].as_f64().unwrap(),
+        g["final_m"][1].as_f64().unwrap(),
+    );
+    assert!((fx + 10.0).hypot(fy) <= 0.5, "ended at ({fx}, {fy})");
+}
+
+/// Malformed goals are refused with a message naming the flag, before anything runs.
+#[test]
+fn bad_goal_arguments_are_refused_clearly() {
+    let out = Command::new(bin("robot-agent"))
+        .current_dir(workspace_root())
+        .args([
+            "sim",
+            "--scenario",
+            "config/scenarios/park.toml",
+            "--headless",
+            "--goal-gnss",
+            "95,10",
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("out of range"), "{err}");
+    let out = Command::new(bin("robot-agent"))
+        .current_dir(workspace_root())
+        .args([
+            "sim",
+            "--scenario",
+            "config/scenarios/park.toml",
+            "--headless",
+            "--goal",
+            "1,nan",
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--goal"));
+}
