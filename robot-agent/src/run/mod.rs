@@ -621,6 +621,36 @@ points = [[-8.0, -12.0], [28.0, -12.0]]
 height_m = 1.5
 "#;
 
+    /// The field with a taught L-shaped route and a car parked across it before the return.
+    fn taught_field() -> sim::Scenario {
+        let text = format!("{FIELD}\n[teach]\npoints = [[0.0, 0.0], [4.0, -6.0], [20.0, -6.0], [24.0, 0.0]]\nspeed_mps = 0.5\n");
+        sim::Scenario::from_toml_str(&text, "<taught field>").unwrap()
+    }
+
+    #[test]
+    #[ignore = "fails today: false obstacles from the mapper (ring artefacts on grass) trigger spurious detours on the return; see issue 9"]
+    fn teach_and_repeat_detours_around_a_parked_car_and_rejoins() {
+        let car: ObstacleFile =
+            toml::from_str("[[car]]\nx_m = 12.0\ny_m = -6.0\nyaw_deg = 0.0\nlength_m = 3.0\n")
+                .unwrap();
+        let opts = HeadlessOptions {
+            timeout_s: 240.0,
+            ..HeadlessOptions::default()
+        };
+        let rep =
+            run_teach_repeat(&taught_field(), AgentConfig::default(), Some(&car), &opts).unwrap();
+        eprintln!("{}", serde_json::to_string(&rep).unwrap());
+        assert_eq!(rep.outcome, "reached", "{rep:?}");
+        assert_eq!(rep.collisions, 0);
+        assert!(rep.detours >= 1, "{rep:?}");
+        assert!(rep.rejoin_distance_m.iter().all(|d| *d <= 2.0), "{rep:?}");
+        assert!(rep.final_error_m <= 0.3, "{rep:?}");
+        assert!(
+            rep.tracking_rms_m <= 0.10 && rep.tracking_max_m <= 0.3,
+            "{rep:?}"
+        );
+    }
+
     #[test]
     fn drives_around_a_crate_to_a_map_goal() {
         let scenario = sim::Scenario::from_toml_str(FIELD, "<field>").unwrap();
