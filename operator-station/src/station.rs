@@ -59,7 +59,9 @@ pub fn zenoh_config(
     connect: &[String],
 ) -> Result<zenoh::Config, StationError> {
     let mut c = match file {
-        Some(f) => zenoh::Config::from_file(f).map_err(|e| zerr(format!("{}: {e}", f.display())))?,
+        Some(f) => {
+            zenoh::Config::from_file(f).map_err(|e| zerr(format!("{}: {e}", f.display())))?
+        }
         None => {
             let mut c = zenoh::Config::default();
             for (k, v) in [
@@ -76,17 +78,24 @@ pub fn zenoh_config(
             c
         }
     };
-    c.insert_json5("scouting/multicast/enabled", "false").map_err(zerr)?;
+    c.insert_json5("scouting/multicast/enabled", "false")
+        .map_err(zerr)?;
     if let Some(m) = mode {
         c.insert_json5("mode", &format!("{m:?}")).map_err(zerr)?;
     }
     if !listen.is_empty() {
-        c.insert_json5("listen/endpoints", &serde_json::to_string(listen).map_err(zerr)?)
-            .map_err(zerr)?;
+        c.insert_json5(
+            "listen/endpoints",
+            &serde_json::to_string(listen).map_err(zerr)?,
+        )
+        .map_err(zerr)?;
     }
     if !connect.is_empty() {
-        c.insert_json5("connect/endpoints", &serde_json::to_string(connect).map_err(zerr)?)
-            .map_err(zerr)?;
+        c.insert_json5(
+            "connect/endpoints",
+            &serde_json::to_string(connect).map_err(zerr)?,
+        )
+        .map_err(zerr)?;
     }
     Ok(c)
 }
@@ -215,7 +224,11 @@ impl Inner {
 
     /// Queues a store write.
     pub fn store(&self, op: StoreOp) {
-        let _ = self.store_tx.lock().unwrap_or_else(|p| p.into_inner()).send(op);
+        let _ = self
+            .store_tx
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .send(op);
     }
 
     fn merge(&self, job: MergeJob) {
@@ -223,7 +236,10 @@ impl Inner {
     }
 
     /// Runs `f` with the read connection (opened on first use).
-    pub fn read<T>(&self, f: impl FnOnce(&rusqlite::Connection) -> Result<T, store::StoreError>) -> Result<T, store::StoreError> {
+    pub fn read<T>(
+        &self,
+        f: impl FnOnce(&rusqlite::Connection) -> Result<T, store::StoreError>,
+    ) -> Result<T, store::StoreError> {
         let mut g = self.reader.lock().unwrap_or_else(|p| p.into_inner());
         if g.is_none() {
             *g = Some(store::open(&self.db)?);
@@ -254,7 +270,10 @@ impl Inner {
         match topic {
             Topic::Session => match msg::decode::<Session>(payload) {
                 Ok(s) if s.robot == rid => self.on_session(&rid, s, now_ms),
-                Ok(s) => self.decode_error(key, format!("session of robot {} on another robot's key", s.robot)),
+                Ok(s) => self.decode_error(
+                    key,
+                    format!("session of robot {} on another robot's key", s.robot),
+                ),
                 Err(e) => self.decode_error(key, e),
             },
             Topic::Pose => match msg::decode::<Pose>(payload) {
@@ -312,9 +331,19 @@ impl Inner {
         if !(s.cell_size_m.is_finite() && s.cell_size_m > 0.0 && s.tile_cells > 0) {
             return self.decode_error(&format!("terranav/{rid}/session"), "bad lattice");
         }
-        let (datum_id, new_datum) = self.datums.lock().unwrap_or_else(|p| p.into_inner()).assign(&s);
+        let (datum_id, new_datum) = self
+            .datums
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .assign(&s);
         if new_datum {
-            let row = self.datums.lock().unwrap_or_else(|p| p.into_inner()).rows.get(&datum_id).cloned();
+            let row = self
+                .datums
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .rows
+                .get(&datum_id)
+                .cloned();
             if let Some(row) = row {
                 self.store(StoreOp::Datum(row));
             }
@@ -323,7 +352,11 @@ impl Inner {
             let mut f = self.fleet.lock().unwrap_or_else(|p| p.into_inner());
             let r = f.robot(rid);
             r.last_seen_unix_ms = r.last_seen_unix_ms.max(now_ms);
-            let changed = r.session.as_ref().map(|o| o.session_id != s.session_id).unwrap_or(true);
+            let changed = r
+                .session
+                .as_ref()
+                .map(|o| o.session_id != s.session_id)
+                .unwrap_or(true);
             if changed {
                 r.last_track = None;
                 r.path = None;
@@ -352,7 +385,10 @@ impl Inner {
             json: json_s,
         });
         if changed {
-            self.emit(json!({"type": "session", "robot": rid, "session": s, "datum_id": datum_id}).to_string());
+            self.emit(
+                json!({"type": "session", "robot": rid, "session": s, "datum_id": datum_id})
+                    .to_string(),
+            );
         }
     }
 
@@ -387,7 +423,9 @@ impl Inner {
             });
         }
         if emit {
-            self.emit(json!({"type": "pose", "robot": rid, "datum_id": datum, "pose": p}).to_string());
+            self.emit(
+                json!({"type": "pose", "robot": rid, "datum_id": datum, "pose": p}).to_string(),
+            );
         }
     }
 
@@ -424,7 +462,9 @@ impl Inner {
                 r.last_path_store = Some((now, p.goal_id));
             }
             r.path = Some(p.clone());
-            store_it.then(|| r.session.as_ref().map(|s| s.session_id.clone())).flatten()
+            store_it
+                .then(|| r.session.as_ref().map(|s| s.session_id.clone()))
+                .flatten()
         };
         let points: Vec<[f32; 2]> = p.points_m.iter().map(|&(x, y)| [x, y]).collect();
         if let Some(sid) = store_it {
@@ -579,13 +619,16 @@ impl Station {
         let merge = MergeWorker::start(
             map.clone(),
             Box::new(move |ch: TileChange, enc: Vec<u8>| {
-                let _ = sink_store.lock().unwrap_or_else(|p| p.into_inner()).send(StoreOp::Tile {
-                    datum_id: ch.datum_id.clone(),
-                    tx: ch.index.tx,
-                    ty: ch.index.ty,
-                    version: ch.version,
-                    data: enc,
-                });
+                let _ = sink_store
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .send(StoreOp::Tile {
+                        datum_id: ch.datum_id.clone(),
+                        tx: ch.index.tx,
+                        ty: ch.index.ty,
+                        version: ch.version,
+                        data: enc,
+                    });
                 let _ = sink_events.send(Arc::from(
                     json!({"type": "tile", "datum_id": ch.datum_id, "tx": ch.index.tx, "ty": ch.index.ty, "version": ch.version})
                         .to_string(),

@@ -21,7 +21,7 @@ enum Command {
     /// LiDAR tools: decode Velodyne VLP-16 packets (pcap, ROS 2 bag) into PCD scans.
     Lidar(cli::lidar::LidarArgs),
     /// Run a simulated robot in the built-in world (live on the bus, or headless to a report).
-    Sim(cli::sim::SimArgs),
+    Sim(Box<cli::sim::SimArgs>),
     /// SLAM tools: evaluate ICP SLAM on a recorded sequence.
     Slam(cli::slam::SlamArgs),
     /// Traversability mapping tools: evaluate, replay and render maps.
@@ -43,7 +43,7 @@ fn main() -> std::process::ExitCode {
         Command::Gnss(a) => cli::gnss::run(a),
         Command::Geo(a) => cli::geo::run(a),
         Command::Lidar(a) => cli::lidar::run(a),
-        Command::Sim(a) => cli::sim::run(a),
+        Command::Sim(a) => cli::sim::run(*a),
         Command::Slam(a) => cli::slam::run(a),
         Command::Map(a) => cli::map::run(a),
         Command::Plan(a) => cli::plan::run(a),

@@ -731,7 +731,7 @@ fn parse_gga(talker: &str, f: &[&str]) -> Result<Gga, NmeaError> {
 
 /// Formats a GGA sentence (with `$`, checksum and CR LF). Latitude/longitude get 8 decimals of
 /// minutes (2e-10 deg, as RTK receivers send), heights 3 decimals (1 mm), HDOP 1 decimal.
-/// Absent values become empty fields; the talker defaults to `GP` when empty.
+/// Absent values become empty fields; a talker that is not two characters becomes `GP`.
 pub fn format_gga(g: &Gga) -> String {
     let talker = if g.talker.len() == 2 { &g.talker } else { "GP" };
     let (lat, ns) =

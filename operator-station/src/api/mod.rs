@@ -16,7 +16,10 @@ use axum::routing::{get, post};
 use axum::{Json, Router};
 use common::grid::TileIndex;
 use common::keys::{self, RobotId, Topic};
-use common::msg::{self, DriveCmd, GoalCmd, GoalTarget, Route, RouteCmd, RouteDirection, RoutePoint, SpeedCmd, StopCmd};
+use common::msg::{
+    self, DriveCmd, GoalCmd, GoalTarget, Route, RouteCmd, RouteDirection, RoutePoint, SpeedCmd,
+    StopCmd,
+};
 use serde::Deserialize;
 use serde_json::{json, Value};
 use tower_http::services::ServeDir;
@@ -67,7 +70,9 @@ pub fn find_web_dir() -> Option<PathBuf> {
         }
     }
     cands.push(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../web"));
-    cands.into_iter().find(|p| p.join("index.html").is_file() || p.join("dist/index.html").is_file())
+    cands
+        .into_iter()
+        .find(|p| p.join("index.html").is_file() || p.join("dist/index.html").is_file())
 }
 
 /// The router: `/api/...` plus static files from `web` (None: API only).
@@ -128,14 +133,20 @@ async fn auth(State(st): State<AppState>, req: Request, next: Next) -> Response 
             })
             .unwrap_or(false);
         if !(header_ok || query_ok) {
-            return ApiError(StatusCode::UNAUTHORIZED, "missing or wrong token".into()).into_response();
+            return ApiError(StatusCode::UNAUTHORIZED, "missing or wrong token".into())
+                .into_response();
         }
     }
     next.run(req).await
 }
 
 async fn health(State(st): State<AppState>) -> Json<Value> {
-    let online = st.inner.fleet.lock().unwrap_or_else(|p| p.into_inner()).online_count();
+    let online = st
+        .inner
+        .fleet
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .online_count();
     let tiles: usize = st
         .inner
         .map
@@ -145,8 +156,10 @@ async fn health(State(st): State<AppState>) -> Json<Value> {
         .values()
         .map(|d| d.tiles.len())
         .sum();
-    Json(json!({"ok": true, "version": VERSION, "robots_online": online, "tiles": tiles,
-                "decode_errors": st.inner.decode_errors.load(Ordering::Relaxed)}))
+    Json(
+        json!({"ok": true, "version": VERSION, "robots_online": online, "tiles": tiles,
+                "decode_errors": st.inner.decode_errors.load(Ordering::Relaxed)}),
+    )
 }
 
 /// The robots list as in API.md (also used by the CLI).
@@ -198,7 +211,10 @@ async fn datums(State(st): State<AppState>) -> Json<Value> {
     Json(Value::Array(list))
 }
 
-async fn tiles_index(State(st): State<AppState>, UrlPath(datum_id): UrlPath<String>) -> ApiResult<Json<Value>> {
+async fn tiles_index(
+    State(st): State<AppState>,
+    UrlPath(datum_id): UrlPath<String>,
+) -> ApiResult<Json<Value>> {
     let lattice = {
         let d = st.inner.datums.lock().unwrap_or_else(|p| p.into_inner());
         d.rows.get(&datum_id).map(crate::station::datum_lattice)
@@ -216,7 +232,9 @@ async fn tiles_index(State(st): State<AppState>, UrlPath(datum_id): UrlPath<Stri
                 .collect()
         })
         .unwrap_or_default();
-    Ok(Json(json!({"cell_size_m": lattice.cell_size_f64(), "tile_cells": lattice.tile_cells, "tiles": tiles})))
+    Ok(Json(
+        json!({"cell_size_m": lattice.cell_size_f64(), "tile_cells": lattice.tile_cells, "tiles": tiles}),
+    ))
 }
 
 async fn tile_png(
@@ -268,14 +286,21 @@ async fn read<T: Send + 'static>(
         .map_err(internal)
 }
 
-async fn sessions(State(st): State<AppState>, Query(q): Query<RobotQuery>) -> ApiResult<Json<Value>> {
+async fn sessions(
+    State(st): State<AppState>,
+    Query(q): Query<RobotQuery>,
+) -> ApiResult<Json<Value>> {
     let rows = read(&st, move |c| store::sessions(c, q.robot.as_deref())).await?;
     let live: Vec<(String, String)> = {
         let f = st.inner.fleet.lock().unwrap_or_else(|p| p.into_inner());
         f.robots
             .iter()
             .filter(|(_, r)| r.online)
-            .filter_map(|(id, r)| r.session.as_ref().map(|s| (id.clone(), s.session_id.clone())))
+            .filter_map(|(id, r)| {
+                r.session
+                    .as_ref()
+                    .map(|s| (id.clone(), s.session_id.clone()))
+            })
             .collect()
     };
     let list: Vec<Value> = rows
@@ -290,12 +315,23 @@ async fn sessions(State(st): State<AppState>, Query(q): Query<RobotQuery>) -> Ap
     Ok(Json(Value::Array(list)))
 }
 
-async fn track(State(st): State<AppState>, UrlPath(session_id): UrlPath<String>) -> ApiResult<Json<Value>> {
+async fn track(
+    State(st): State<AppState>,
+    UrlPath(session_id): UrlPath<String>,
+) -> ApiResult<Json<Value>> {
     let sid = session_id.clone();
-    let (row, pts) = read(&st, move |c| Ok((store::session(c, &sid)?, store::track(c, &sid)?))).await?;
+    let (row, pts) = read(&st, move |c| {
+        Ok((store::session(c, &sid)?, store::track(c, &sid)?))
+    })
+    .await?;
     let row = row.ok_or_else(|| not_found(format!("unknown session {session_id}")))?;
-    let points: Vec<Value> = pts.iter().map(|(t, x, y, yaw)| json!([t, x, y, yaw])).collect();
-    Ok(Json(json!({"session_id": row.session_id, "robot": row.robot, "datum_id": row.datum_id, "points": points})))
+    let points: Vec<Value> = pts
+        .iter()
+        .map(|(t, x, y, yaw)| json!([t, x, y, yaw]))
+        .collect();
+    Ok(Json(
+        json!({"session_id": row.session_id, "robot": row.robot, "datum_id": row.datum_id, "points": points}),
+    ))
 }
 
 async fn routes(State(st): State<AppState>) -> ApiResult<Json<Value>> {
@@ -311,7 +347,10 @@ async fn load_route(st: &AppState, route_id: &str) -> ApiResult<Route> {
     serde_json::from_str(&j).map_err(internal)
 }
 
-async fn route_get(State(st): State<AppState>, UrlPath(route_id): UrlPath<String>) -> ApiResult<Json<Route>> {
+async fn route_get(
+    State(st): State<AppState>,
+    UrlPath(route_id): UrlPath<String>,
+) -> ApiResult<Json<Route>> {
     Ok(Json(load_route(&st, &route_id).await?))
 }
 
@@ -342,10 +381,16 @@ pub fn route_gpx_text(r: &Route) -> Result<String, String> {
 
 /// Escapes text for XML.
 pub fn xml_escape(s: &str) -> String {
-    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
 }
 
-async fn route_gpx(State(st): State<AppState>, UrlPath(route_id): UrlPath<String>) -> ApiResult<Response> {
+async fn route_gpx(
+    State(st): State<AppState>,
+    UrlPath(route_id): UrlPath<String>,
+) -> ApiResult<Response> {
     let r = load_route(&st, &route_id).await?;
     let gpx = route_gpx_text(&r).map_err(bad)?;
     Ok((
@@ -367,7 +412,11 @@ struct ImportQuery {
     datum_id: String,
 }
 
-async fn route_import(State(st): State<AppState>, Query(q): Query<ImportQuery>, body: Bytes) -> ApiResult<(StatusCode, Json<Value>)> {
+async fn route_import(
+    State(st): State<AppState>,
+    Query(q): Query<ImportQuery>,
+    body: Bytes,
+) -> ApiResult<(StatusCode, Json<Value>)> {
     let datum = st
         .inner
         .datums
@@ -425,8 +474,12 @@ async fn route_import(State(st): State<AppState>, Query(q): Query<ImportQuery>, 
         json: serde_json::to_string(&route).map_err(internal)?,
     });
     st.inner.flush_store_async().await;
-    st.inner.emit(json!({"type": "route", "route": row}).to_string());
-    Ok((StatusCode::CREATED, Json(serde_json::to_value(row).map_err(internal)?)))
+    st.inner
+        .emit(json!({"type": "route", "route": row}).to_string());
+    Ok((
+        StatusCode::CREATED,
+        Json(serde_json::to_value(row).map_err(internal)?),
+    ))
 }
 
 #[derive(Deserialize)]
@@ -438,7 +491,10 @@ struct ConvertQuery {
     lon: Option<f64>,
 }
 
-async fn geo_convert(State(st): State<AppState>, Query(q): Query<ConvertQuery>) -> ApiResult<Json<Value>> {
+async fn geo_convert(
+    State(st): State<AppState>,
+    Query(q): Query<ConvertQuery>,
+) -> ApiResult<Json<Value>> {
     let datum = st
         .inner
         .datums
@@ -451,8 +507,17 @@ async fn geo_convert(State(st): State<AppState>, Query(q): Query<ConvertQuery>) 
             let g = common::geo::enu_to_lla(&datum, &nalgebra::Vector3::new(x, y, 0.0));
             Ok(Json(json!({"lat_deg": g.lat_deg, "lon_deg": g.lon_deg})))
         }
-        (_, _, Some(lat), Some(lon)) if (-90.0..=90.0).contains(&lat) && (-180.0..=180.0).contains(&lon) => {
-            let e = common::geo::lla_to_enu(&datum, &msg::Datum { lat_deg: lat, lon_deg: lon, h_m: datum.h_m });
+        (_, _, Some(lat), Some(lon))
+            if (-90.0..=90.0).contains(&lat) && (-180.0..=180.0).contains(&lon) =>
+        {
+            let e = common::geo::lla_to_enu(
+                &datum,
+                &msg::Datum {
+                    lat_deg: lat,
+                    lon_deg: lon,
+                    h_m: datum.h_m,
+                },
+            );
             Ok(Json(json!({"x": e.x, "y": e.y})))
         }
         _ => Err(bad("give x and y, or lat and lon (in range)")),
@@ -480,7 +545,10 @@ async fn put(st: &AppState, robot: &RobotId, topic: Topic, payload: Vec<u8>) -> 
 }
 
 fn accepted(sent: Value) -> (StatusCode, Json<Value>) {
-    (StatusCode::ACCEPTED, Json(json!({"ok": true, "sent": sent})))
+    (
+        StatusCode::ACCEPTED,
+        Json(json!({"ok": true, "sent": sent})),
+    )
 }
 
 fn json_body<T: serde::de::DeserializeOwned>(body: &Bytes) -> ApiResult<T> {
@@ -520,13 +588,21 @@ pub fn goal_target(b: &GoalBody) -> Result<GoalTarget, String> {
                     return Err("height must be finite".into());
                 }
             }
-            Ok(GoalTarget::Gnss { lat_deg: lat, lon_deg: lon, h_m: b.h })
+            Ok(GoalTarget::Gnss {
+                lat_deg: lat,
+                lon_deg: lon,
+                h_m: b.h,
+            })
         }
         _ => Err("give either {\"x\", \"y\"} or {\"lat\", \"lon\"}".into()),
     }
 }
 
-async fn cmd_goal(State(st): State<AppState>, UrlPath(robot): UrlPath<String>, body: Bytes) -> ApiResult<(StatusCode, Json<Value>)> {
+async fn cmd_goal(
+    State(st): State<AppState>,
+    UrlPath(robot): UrlPath<String>,
+    body: Bytes,
+) -> ApiResult<(StatusCode, Json<Value>)> {
     let id = known_robot(&st, &robot)?;
     let b: GoalBody = json_body(&body)?;
     let target = goal_target(&b).map_err(bad)?;
@@ -555,7 +631,11 @@ struct StopBody {
     reason: Option<String>,
 }
 
-async fn cmd_stop(State(st): State<AppState>, UrlPath(robot): UrlPath<String>, body: Bytes) -> ApiResult<(StatusCode, Json<Value>)> {
+async fn cmd_stop(
+    State(st): State<AppState>,
+    UrlPath(robot): UrlPath<String>,
+    body: Bytes,
+) -> ApiResult<(StatusCode, Json<Value>)> {
     let id = known_robot(&st, &robot)?;
     let b: StopBody = json_body(&body)?;
     let cmd = StopCmd {
@@ -573,7 +653,11 @@ struct DriveBody {
     deadman: bool,
 }
 
-async fn cmd_drive(State(st): State<AppState>, UrlPath(robot): UrlPath<String>, body: Bytes) -> ApiResult<(StatusCode, Json<Value>)> {
+async fn cmd_drive(
+    State(st): State<AppState>,
+    UrlPath(robot): UrlPath<String>,
+    body: Bytes,
+) -> ApiResult<(StatusCode, Json<Value>)> {
     let id = known_robot(&st, &robot)?;
     let b: DriveBody = json_body(&body)?;
     if !(b.v_mps.is_finite() && b.omega_rps.is_finite()) {
@@ -594,13 +678,19 @@ struct SpeedBody {
     limit_mps: f32,
 }
 
-async fn cmd_speed(State(st): State<AppState>, UrlPath(robot): UrlPath<String>, body: Bytes) -> ApiResult<(StatusCode, Json<Value>)> {
+async fn cmd_speed(
+    State(st): State<AppState>,
+    UrlPath(robot): UrlPath<String>,
+    body: Bytes,
+) -> ApiResult<(StatusCode, Json<Value>)> {
     let id = known_robot(&st, &robot)?;
     let b: SpeedBody = json_body(&body)?;
     if !(b.limit_mps.is_finite() && b.limit_mps > 0.0) {
         return Err(bad("limit_mps must be positive"));
     }
-    let cmd = SpeedCmd { limit_mps: b.limit_mps };
+    let cmd = SpeedCmd {
+        limit_mps: b.limit_mps,
+    };
     put(&st, &id, Topic::CmdSpeed, msg::encode(&cmd)).await?;
     Ok(accepted(serde_json::to_value(&cmd).map_err(internal)?))
 }
@@ -613,7 +703,11 @@ struct RouteBody {
     direction: Option<String>,
 }
 
-async fn cmd_route(State(st): State<AppState>, UrlPath(robot): UrlPath<String>, body: Bytes) -> ApiResult<(StatusCode, Json<Value>)> {
+async fn cmd_route(
+    State(st): State<AppState>,
+    UrlPath(robot): UrlPath<String>,
+    body: Bytes,
+) -> ApiResult<(StatusCode, Json<Value>)> {
     let id = known_robot(&st, &robot)?;
     let b: RouteBody = json_body(&body)?;
     let cmd = match b.action.as_str() {
@@ -642,7 +736,9 @@ async fn cmd_route(State(st): State<AppState>, UrlPath(robot): UrlPath<String>, 
     };
     put(&st, &id, Topic::CmdRoute, msg::encode(&cmd)).await?;
     let sent = match &cmd {
-        RouteCmd::Repeat { route, direction } => json!({"Repeat": {"route_id": route.route_id, "direction": direction}}),
+        RouteCmd::Repeat { route, direction } => {
+            json!({"Repeat": {"route_id": route.route_id, "direction": direction}})
+        }
         other => serde_json::to_value(other).map_err(internal)?,
     };
     Ok(accepted(sent))

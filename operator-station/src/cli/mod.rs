@@ -18,7 +18,11 @@ use crate::station::{self, Station, StationOptions, DEFAULT_LISTEN_ENDPOINT};
 
 /// `operator-station`.
 #[derive(Debug, Parser)]
-#[command(name = "operator-station", version, about = "terranav operator station")]
+#[command(
+    name = "operator-station",
+    version,
+    about = "terranav operator station"
+)]
 pub struct Cli {
     /// What to do.
     #[command(subcommand)]
@@ -188,7 +192,9 @@ pub fn main() -> anyhow::Result<()> {
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
-    let rt = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?;
     rt.block_on(async move {
         match cli.cmd {
             Cmd::Serve(a) => serve(a).await,
@@ -202,7 +208,11 @@ pub fn main() -> anyhow::Result<()> {
 }
 
 /// The HTTP address: `--listen` (non-loopback requires a token) or 127.0.0.1:port.
-pub fn http_addr(listen: Option<SocketAddr>, port: u16, token: Option<&str>) -> anyhow::Result<SocketAddr> {
+pub fn http_addr(
+    listen: Option<SocketAddr>,
+    port: u16,
+    token: Option<&str>,
+) -> anyhow::Result<SocketAddr> {
     let addr = listen.unwrap_or_else(|| SocketAddr::from(([127, 0, 0, 1], port)));
     if !addr.ip().is_loopback() && token.map(|t| t.is_empty()).unwrap_or(true) {
         bail!(
@@ -220,7 +230,12 @@ fn zenoh_config(z: &ZenohArgs, listen_default: Option<&str>) -> anyhow::Result<z
         _ => vec![],
     };
     let connect: Vec<String> = z.connect.iter().cloned().collect();
-    Ok(station::zenoh_config(z.zenoh.as_deref(), None, &listen, &connect)?)
+    Ok(station::zenoh_config(
+        z.zenoh.as_deref(),
+        None,
+        &listen,
+        &connect,
+    )?)
 }
 
 /// Runs the station until Ctrl-C.
@@ -229,7 +244,10 @@ pub async fn serve(a: ServeArgs) -> anyhow::Result<()> {
     let zc = zenoh_config(&a.z, Some(DEFAULT_LISTEN_ENDPOINT))?;
     let web = a.web.clone().or_else(api::find_web_dir);
     let running = start_station(zc, &a.db, addr, a.token.clone(), web).await?;
-    println!("operator station: http://{addr}/  (database {})", a.db.display());
+    println!(
+        "operator station: http://{addr}/  (database {})",
+        a.db.display()
+    );
     tokio::signal::ctrl_c().await.ok();
     running.stop().await;
     Ok(())
@@ -290,11 +308,20 @@ fn ensure_web_deps(web: &Path) -> Option<String> {
     if web.join("node_modules/leaflet").is_dir() {
         return None;
     }
-    let npm_ok = Command::new("npm").arg("--version").stdout(Stdio::null()).stderr(Stdio::null()).status().map(|s| s.success()).unwrap_or(false);
+    let npm_ok = Command::new("npm")
+        .arg("--version")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false);
     if !npm_ok {
         return Some("npm not found: the UI is served without the map library (install Node.js/npm, then `npm ci --prefix web`)".into());
     }
-    eprintln!("first run: installing the web UI's dependencies (npm ci --prefix {}) ...", web.display());
+    eprintln!(
+        "first run: installing the web UI's dependencies (npm ci --prefix {}) ...",
+        web.display()
+    );
     let ok = Command::new("npm")
         .args(["ci", "--no-audit", "--no-fund", "--prefix"])
         .arg(web)
@@ -336,7 +363,9 @@ impl Drop for Children {
 pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
     let addr = http_addr(None, a.port, None)?;
     let zport = if a.zenoh_port == 0 {
-        std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port()
+        std::net::TcpListener::bind("127.0.0.1:0")?
+            .local_addr()?
+            .port()
     } else {
         a.zenoh_port
     };
@@ -356,7 +385,9 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
         a.scenario.clone()
     } else {
         // Relative to the workspace when run from elsewhere.
-        let alt = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..").join(&a.scenario);
+        let alt = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("..")
+            .join(&a.scenario);
         if alt.is_file() {
             alt
         } else {
@@ -372,11 +403,23 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
             .arg("sim")
             .arg("--scenario")
             .arg(&scenario)
-            .args(["--robot", &robot, "--connect", &endpoint, "--seed", &i.to_string()])
+            .args([
+                "--robot",
+                &robot,
+                "--connect",
+                &endpoint,
+                "--seed",
+                &i.to_string(),
+            ])
             .arg(format!("--start={start}"))
             .stdin(Stdio::null())
             .spawn()
-            .with_context(|| format!("start {} (build it with cargo build --release --bins)", agent.display()))?;
+            .with_context(|| {
+                format!(
+                    "start {} (build it with cargo build --release --bins)",
+                    agent.display()
+                )
+            })?;
         children.0.push(child);
     }
     println!("terranav demo: open http://{addr}/  ({} simulated robots, zenoh {endpoint}; Ctrl-C to stop)", a.robots);
@@ -412,7 +455,9 @@ async fn client_session(z: &ZenohArgs) -> anyhow::Result<zenoh::Session> {
         z.connect = Some(DEFAULT_LISTEN_ENDPOINT.to_string());
     }
     let zc = zenoh_config(&z, None)?;
-    zenoh::open(zc).await.map_err(|e| anyhow::anyhow!("zenoh: {e}"))
+    zenoh::open(zc)
+        .await
+        .map_err(|e| anyhow::anyhow!("zenoh: {e}"))
 }
 
 async fn alive_robots(s: &zenoh::Session, wait: Duration) -> anyhow::Result<Vec<String>> {
@@ -455,7 +500,10 @@ async fn robots(a: ClientArgs) -> anyhow::Result<()> {
                 }
             }
         }
-        println!("{}", serde_json::json!({"robot": id, "online": true, "session": session}));
+        println!(
+            "{}",
+            serde_json::json!({"robot": id, "online": true, "session": session})
+        );
     }
     let _ = s.close().await;
     Ok(())
@@ -471,7 +519,12 @@ fn parse_pair(s: &str) -> anyhow::Result<(f64, f64)> {
     Ok((a, b))
 }
 
-async fn send_to_robot(c: &ClientArgs, robot: &str, topic: Topic, payload: Vec<u8>) -> anyhow::Result<()> {
+async fn send_to_robot(
+    c: &ClientArgs,
+    robot: &str,
+    topic: Topic,
+    payload: Vec<u8>,
+) -> anyhow::Result<()> {
     let rid = RobotId::new(robot)?;
     let s = client_session(&c.z).await?;
     tokio::time::sleep(Duration::from_millis(300)).await;
@@ -500,7 +553,11 @@ async fn goal(a: GoalArgs) -> anyhow::Result<()> {
             if !(-90.0..=90.0).contains(&lat) || !(-180.0..=180.0).contains(&lon) {
                 bail!("latitude/longitude out of range");
             }
-            GoalTarget::Gnss { lat_deg: lat, lon_deg: lon, h_m: None }
+            GoalTarget::Gnss {
+                lat_deg: lat,
+                lon_deg: lon,
+                h_m: None,
+            }
         }
         _ => bail!("give --xy X,Y or --gnss LAT,LON"),
     };
@@ -510,7 +567,10 @@ async fn goal(a: GoalArgs) -> anyhow::Result<()> {
         tolerance_m: 0.0,
     };
     send_to_robot(&a.client, &a.robot, Topic::CmdGoal, msg::encode(&cmd)).await?;
-    println!("{}", serde_json::json!({"ok": true, "robot": a.robot, "sent": cmd}));
+    println!(
+        "{}",
+        serde_json::json!({"ok": true, "robot": a.robot, "sent": cmd})
+    );
     Ok(())
 }
 
@@ -519,7 +579,10 @@ async fn stop(a: StopArgs) -> anyhow::Result<()> {
         reason: "operator-station stop".into(),
     };
     send_to_robot(&a.client, &a.robot, Topic::CmdStop, msg::encode(&cmd)).await?;
-    println!("{}", serde_json::json!({"ok": true, "robot": a.robot, "sent": cmd}));
+    println!(
+        "{}",
+        serde_json::json!({"ok": true, "robot": a.robot, "sent": cmd})
+    );
     Ok(())
 }
 
@@ -530,7 +593,8 @@ fn export(a: ExportArgs) -> anyhow::Result<()> {
             let datums = crate::store::datums(&c)?;
             let mut map = crate::merge::MergedMap::default();
             for (d, _, _, v, data) in crate::store::tiles(&c, datum.as_deref())? {
-                let mut t = common::grid::decode_tile(&data).with_context(|| format!("stored tile of {d}"))?;
+                let mut t = common::grid::decode_tile(&data)
+                    .with_context(|| format!("stored tile of {d}"))?;
                 t.version = v;
                 map.restore(&d, t);
             }
@@ -544,7 +608,10 @@ fn export(a: ExportArgs) -> anyhow::Result<()> {
                     .context("the database has no tiles")?,
             };
             let dm = map.datums.get(&pick).with_context(|| {
-                format!("no tiles for datum {pick} (datums: {:?})", datums.iter().map(|d| &d.datum_id).collect::<Vec<_>>())
+                format!(
+                    "no tiles for datum {pick} (datums: {:?})",
+                    datums.iter().map(|d| &d.datum_id).collect::<Vec<_>>()
+                )
             })?;
             let bytes = crate::merge::datum_png(dm).context("empty map")?;
             std::fs::write(&png, bytes).with_context(|| format!("write {}", png.display()))?;
@@ -553,9 +620,15 @@ fn export(a: ExportArgs) -> anyhow::Result<()> {
                 serde_json::json!({"datum_id": pick, "tiles": dm.tiles.len(), "bounds_m": dm.bounds_m(), "png": png})
             );
         }
-        ExportWhat::Track { robot, session, gpx, db } => {
+        ExportWhat::Track {
+            robot,
+            session,
+            gpx,
+            db,
+        } => {
             let c = open_existing(&db)?;
-            let row = crate::store::session(&c, &session)?.with_context(|| format!("unknown session {session}"))?;
+            let row = crate::store::session(&c, &session)?
+                .with_context(|| format!("unknown session {session}"))?;
             if row.robot != robot {
                 bail!("session {session} belongs to {}, not {robot}", row.robot);
             }
@@ -568,7 +641,10 @@ fn export(a: ExportArgs) -> anyhow::Result<()> {
             let mut out = String::from(
                 "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<gpx version=\"1.1\" creator=\"terranav\" xmlns=\"http://www.topografix.com/GPX/1/1\">\n<trk>",
             );
-            out.push_str(&format!("<name>{}</name><trkseg>\n", api::xml_escape(&format!("{robot} {session}"))));
+            out.push_str(&format!(
+                "<name>{}</name><trkseg>\n",
+                api::xml_escape(&format!("{robot} {session}"))
+            ));
             for (t, x, y, _) in &pts {
                 let g = common::geo::enu_to_lla(&datum, &nalgebra::Vector3::new(*x, *y, 0.0));
                 out.push_str(&format!(
@@ -581,7 +657,10 @@ fn export(a: ExportArgs) -> anyhow::Result<()> {
             }
             out.push_str("</trkseg></trk>\n</gpx>\n");
             std::fs::write(&gpx, out).with_context(|| format!("write {}", gpx.display()))?;
-            println!("{}", serde_json::json!({"session_id": session, "points": pts.len(), "gpx": gpx}));
+            println!(
+                "{}",
+                serde_json::json!({"session_id": session, "points": pts.len(), "gpx": gpx})
+            );
         }
     }
     Ok(())
@@ -629,7 +708,10 @@ mod tests {
         assert!(http_addr(Some(any), 0, None).is_err());
         assert!(http_addr(Some(any), 0, Some("")).is_err());
         assert_eq!(http_addr(Some(any), 0, Some("t")).unwrap(), any);
-        assert_eq!(http_addr(None, 9000, None).unwrap(), "127.0.0.1:9000".parse().unwrap());
+        assert_eq!(
+            http_addr(None, 9000, None).unwrap(),
+            "127.0.0.1:9000".parse().unwrap()
+        );
     }
 
     #[test]

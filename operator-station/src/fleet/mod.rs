@@ -62,7 +62,9 @@ impl Rate {
 
     /// Time since the last arrival.
     pub fn age(&self, now: Instant) -> Option<Duration> {
-        self.arrivals.back().map(|t| now.saturating_duration_since(*t))
+        self.arrivals
+            .back()
+            .map(|t| now.saturating_duration_since(*t))
     }
 }
 
@@ -132,13 +134,26 @@ impl RobotState {
     }
 
     /// Rates (Hz) and ages (ms) for the API.
-    pub fn rates_and_ages(&self, now: Instant) -> (BTreeMap<&'static str, f64>, BTreeMap<&'static str, Option<u64>>) {
+    pub fn rates_and_ages(
+        &self,
+        now: Instant,
+    ) -> (
+        BTreeMap<&'static str, f64>,
+        BTreeMap<&'static str, Option<u64>>,
+    ) {
         let mut rates = BTreeMap::new();
         let mut ages = BTreeMap::new();
         for t in [RateTopic::Pose, RateTopic::Status, RateTopic::Tile] {
             let r = self.rates.get(&t);
-            rates.insert(t.name(), r.map(|r| (r.hz(now) * 100.0).round() / 100.0).unwrap_or(0.0));
-            ages.insert(t.name(), r.and_then(|r| r.age(now)).map(|d| d.as_millis() as u64));
+            rates.insert(
+                t.name(),
+                r.map(|r| (r.hz(now) * 100.0).round() / 100.0)
+                    .unwrap_or(0.0),
+            );
+            ages.insert(
+                t.name(),
+                r.and_then(|r| r.age(now)).map(|d| d.as_millis() as u64),
+            );
         }
         (rates, ages)
     }

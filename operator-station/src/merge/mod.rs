@@ -389,7 +389,11 @@ mod tests {
         });
         let b = tile(2, -1, |c, r| {
             if c >= 32 {
-                let s = if r == 7 { CellState::Obstacle } else { CellState::Traversable };
+                let s = if r == 7 {
+                    CellState::Obstacle
+                } else {
+                    CellState::Traversable
+                };
                 cell(s, 200, 3, 20)
             } else {
                 Cell::UNKNOWN
@@ -402,7 +406,11 @@ mod tests {
         for r in 0..64 {
             for c in 0..64 {
                 let got = t.get(c as u16, r as u16);
-                let want = if c >= 32 { *b.get(c as u16, r as u16) } else { *a.get(c as u16, r as u16) };
+                let want = if c >= 32 {
+                    *b.get(c as u16, r as u16)
+                } else {
+                    *a.get(c as u16, r as u16)
+                };
                 assert_eq!(*got, want, "cell ({c},{r})");
             }
         }
@@ -410,7 +418,10 @@ mod tests {
         let mut m2 = MergedMap::default();
         m2.merge("d0", &b).unwrap();
         m2.merge("d0", &a).unwrap();
-        assert_eq!(m2.datums["d0"].tiles[&TileIndex { tx: 2, ty: -1 }].cells, t.cells);
+        assert_eq!(
+            m2.datums["d0"].tiles[&TileIndex { tx: 2, ty: -1 }].cells,
+            t.cells
+        );
     }
 
     #[test]
@@ -434,21 +445,43 @@ mod tests {
     fn lattice_mismatch_is_refused() {
         let mut m = MergedMap::default();
         m.merge("d0", &tile(0, 0, |_, _| Cell::UNKNOWN)).unwrap();
-        let mut t = Tile::new(TileIndex { tx: 0, ty: 0 }, Lattice { cell_size_m: 0.5, tile_cells: 32 });
+        let mut t = Tile::new(
+            TileIndex { tx: 0, ty: 0 },
+            Lattice {
+                cell_size_m: 0.5,
+                tile_cells: 32,
+            },
+        );
         t.cells[0] = cell(CellState::Obstacle, 1, 1, 0);
-        assert!(matches!(m.merge("d0", &t), Err(MergeError::LatticeMismatch { .. })));
+        assert!(matches!(
+            m.merge("d0", &t),
+            Err(MergeError::LatticeMismatch { .. })
+        ));
     }
 
     #[test]
     fn png_has_north_on_top() {
-        let t = tile(0, 0, |_, r| if r == 63 { cell(CellState::Obstacle, 1, 1, 0) } else { Cell::UNKNOWN });
-        let mt = MergedTile { cells: t.cells, version: 1 };
+        let t = tile(0, 0, |_, r| {
+            if r == 63 {
+                cell(CellState::Obstacle, 1, 1, 0)
+            } else {
+                Cell::UNKNOWN
+            }
+        });
+        let mt = MergedTile {
+            cells: t.cells,
+            version: 1,
+        };
         let png = tile_png(&mt, 64);
         let dec = png::Decoder::new(std::io::Cursor::new(png));
         let mut r = dec.read_info().unwrap();
         let mut buf = vec![0; r.output_buffer_size().unwrap()];
         r.next_frame(&mut buf).unwrap();
-        assert_eq!(&buf[..4], &[0xe5, 0x39, 0x35, 255], "top row is the northmost");
+        assert_eq!(
+            &buf[..4],
+            &[0xe5, 0x39, 0x35, 255],
+            "top row is the northmost"
+        );
         assert_eq!(buf[64 * 4 * 63 + 3], 0, "bottom row unknown, transparent");
     }
 }

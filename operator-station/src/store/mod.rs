@@ -211,7 +211,14 @@ fn apply(tx: &rusqlite::Transaction<'_>, op: &StoreOp) -> rusqlite::Result<()> {
         StoreOp::Datum(d) => {
             tx.execute(
                 "INSERT OR REPLACE INTO datums VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
-                params![d.datum_id, d.lat_deg, d.lon_deg, d.h_m, d.cell_size_m as f64, d.tile_cells],
+                params![
+                    d.datum_id,
+                    d.lat_deg,
+                    d.lon_deg,
+                    d.h_m,
+                    d.cell_size_m as f64,
+                    d.tile_cells
+                ],
             )?;
         }
         StoreOp::Session { row, json } => {
@@ -412,14 +419,23 @@ pub fn datums(c: &Connection) -> Result<Vec<DatumRow>, StoreError> {
     Ok(rows)
 }
 
-/// Every stored merged tile: (datum, tx, ty, version, encoded).
-pub fn tiles(c: &Connection, datum_id: Option<&str>) -> Result<Vec<(String, i32, i32, u64, Vec<u8>)>, StoreError> {
+/// A stored merged tile: (datum, tx, ty, version, encoded).
+pub type TileRow = (String, i32, i32, u64, Vec<u8>);
+
+/// Every stored merged tile, optionally of one datum.
+pub fn tiles(c: &Connection, datum_id: Option<&str>) -> Result<Vec<TileRow>, StoreError> {
     let mut st = c.prepare(
         "SELECT datum_id, tx, ty, version, data FROM tiles WHERE ?1 IS NULL OR datum_id = ?1 ORDER BY datum_id, tx, ty",
     )?;
     let rows = st
         .query_map(params![datum_id], |r| {
-            Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get::<_, i64>(3)? as u64, r.get(4)?))
+            Ok((
+                r.get(0)?,
+                r.get(1)?,
+                r.get(2)?,
+                r.get::<_, i64>(3)? as u64,
+                r.get(4)?,
+            ))
         })?
         .collect::<Result<Vec<_>, _>>()?;
     Ok(rows)
@@ -460,7 +476,9 @@ pub fn session(c: &Connection, session_id: &str) -> Result<Option<SessionRow>, S
 
 /// Track points of a session: (t_unix_ms, x, y, yaw).
 pub fn track(c: &Connection, session_id: &str) -> Result<Vec<(u64, f64, f64, f64)>, StoreError> {
-    let mut st = c.prepare("SELECT t_unix_ms, x, y, yaw FROM track WHERE session_id = ?1 ORDER BY t_unix_ms")?;
+    let mut st = c.prepare(
+        "SELECT t_unix_ms, x, y, yaw FROM track WHERE session_id = ?1 ORDER BY t_unix_ms",
+    )?;
     let rows = st
         .query_map(params![session_id], |r| {
             Ok((r.get::<_, i64>(0)? as u64, r.get(1)?, r.get(2)?, r.get(3)?))
@@ -530,11 +548,18 @@ mod tests {
         w.finish();
         // Reopening does not migrate again and finds the rows.
         let c = open(&p).unwrap();
-        let v: i64 = c.pragma_query_value(None, "user_version", |r| r.get(0)).unwrap();
+        let v: i64 = c
+            .pragma_query_value(None, "user_version", |r| r.get(0))
+            .unwrap();
         assert_eq!(v, SCHEMA_VERSION);
         assert_eq!(datums(&c).unwrap().len(), 1);
-        assert_eq!(tiles(&c, Some("d0")).unwrap(), vec![("d0".to_string(), -1, 2, 3, vec![1, 2, 3])]);
-        let mode: String = c.pragma_query_value(None, "journal_mode", |r| r.get(0)).unwrap();
+        assert_eq!(
+            tiles(&c, Some("d0")).unwrap(),
+            vec![("d0".to_string(), -1, 2, 3, vec![1, 2, 3])]
+        );
+        let mode: String = c
+            .pragma_query_value(None, "journal_mode", |r| r.get(0))
+            .unwrap();
         assert_eq!(mode, "wal");
     }
 

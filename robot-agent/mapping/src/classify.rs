@@ -116,7 +116,10 @@ impl Rules {
         if c.n < self.min_points {
             return Verdict::Unobserved;
         }
-        let around: u32 = (1..4).flat_map(|y| (1..4).map(move |x| (y, x))).map(|(y, x)| nb[y][x].n).sum();
+        let around: u32 = (1..4)
+            .flat_map(|y| (1..4).map(move |x| (y, x)))
+            .map(|(y, x)| nb[y][x].n)
+            .sum();
         if around < self.points_around {
             return Verdict::Undecided;
         }
@@ -135,7 +138,11 @@ impl Rules {
                     continue;
                 }
                 if let Some(h) = seen(dx, dy) {
-                    let limit = if dx != 0 && dy != 0 { self.h_max_m * std::f64::consts::SQRT_2 } else { self.h_max_m };
+                    let limit = if dx != 0 && dy != 0 {
+                        self.h_max_m * std::f64::consts::SQRT_2
+                    } else {
+                        self.h_max_m
+                    };
                     if (c.mean_m - h).abs() > limit {
                         return Verdict::NeighbourStep;
                     }
@@ -152,7 +159,11 @@ impl Rules {
                     continue;
                 }
                 if let Some(t) = top(dx, dy) {
-                    let limit = if dx != 0 && dy != 0 { self.h_max_m * std::f64::consts::SQRT_2 } else { self.h_max_m };
+                    let limit = if dx != 0 && dy != 0 {
+                        self.h_max_m * std::f64::consts::SQRT_2
+                    } else {
+                        self.h_max_m
+                    };
                     if c.max_m - t > limit {
                         return Verdict::TopStep;
                     }
@@ -174,7 +185,11 @@ impl Rules {
                 let jump = h1 - c.mean_m;
                 // A side that is itself a discontinuity (steeper than alpha) says nothing about
                 // the slope here; it is that cell's own step.
-                let side_limit = if ax != 0 && ay != 0 { self.h_max_m * std::f64::consts::SQRT_2 } else { self.h_max_m };
+                let side_limit = if ax != 0 && ay != 0 {
+                    self.h_max_m * std::f64::consts::SQRT_2
+                } else {
+                    self.h_max_m
+                };
                 let mut sides = Vec::with_capacity(2);
                 if let Some(hb) = seen(-ax, -ay) {
                     sides.push(c.mean_m - hb);
@@ -198,7 +213,8 @@ impl Rules {
     /// Least-squares plane `h = a + gx x + gy y` through the observed cells of the 3x3 block,
     /// as a gradient (dimensionless rise per metre); None when too few cells span it.
     fn plane_gradient(&self, nb: &Neighbourhood) -> Option<(f64, f64)> {
-        let (mut n, mut sx, mut sy, mut sxx, mut syy, mut sxy, mut sh, mut sxh, mut syh) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        let (mut n, mut sx, mut sy, mut sxx, mut syy, mut sxy, mut sh, mut sxh, mut syh) =
+            (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
         let c = nb[2][2].mean_m;
         for dy in -1i32..=1 {
             for dx in -1i32..=1 {
@@ -206,7 +222,11 @@ impl Rules {
                 if s.n < self.min_points {
                     continue;
                 }
-                let (x, y, h) = (f64::from(dx) * self.cell_m, f64::from(dy) * self.cell_m, s.mean_m - c);
+                let (x, y, h) = (
+                    f64::from(dx) * self.cell_m,
+                    f64::from(dy) * self.cell_m,
+                    s.mean_m - c,
+                );
                 n += 1.0;
                 sx += x;
                 sy += y;
@@ -247,7 +267,12 @@ mod tests {
         for (y, row) in nb.iter_mut().enumerate() {
             for (x, c) in row.iter_mut().enumerate() {
                 let (px, py) = ((x as f64 - 2.0) * L, (y as f64 - 2.0) * L);
-                *c = CellStats { n, mean_m: f(px, py), var_m2: var, max_m: f(px, py) + 2.0 * var.sqrt() };
+                *c = CellStats {
+                    n,
+                    mean_m: f(px, py),
+                    var_m2: var,
+                    max_m: f(px, py) + 2.0 * var.sqrt(),
+                };
             }
         }
         nb
@@ -269,7 +294,10 @@ mod tests {
 
     #[test]
     fn flat_ground_is_traversable() {
-        assert_eq!(rules().classify(&field(|_, _| 3.0, 20, 0.0003)), Verdict::Traversable);
+        assert_eq!(
+            rules().classify(&field(|_, _| 3.0, 20, 0.0003)),
+            Verdict::Traversable
+        );
     }
 
     #[test]
@@ -279,15 +307,30 @@ mod tests {
         assert_ne!(v10[0], Verdict::Traversable, "{v10:?}");
         assert_ne!(v10[1], Verdict::Traversable, "{v10:?}");
         assert_eq!(v10[2], Verdict::Traversable, "{v10:?}");
-        assert!(step_verdicts(0.05).iter().all(|v| *v == Verdict::Traversable), "{:?}", step_verdicts(0.05));
+        assert!(
+            step_verdicts(0.05)
+                .iter()
+                .all(|v| *v == Verdict::Traversable),
+            "{:?}",
+            step_verdicts(0.05)
+        );
         // Downward steps too.
-        assert!(step_verdicts(-0.10).iter().take(2).all(|v| *v != Verdict::Traversable));
+        assert!(step_verdicts(-0.10)
+            .iter()
+            .take(2)
+            .all(|v| *v != Verdict::Traversable));
     }
 
     #[test]
     fn curb_detected_on_a_15_deg_slope_without_the_slope_tripping() {
         let g = 15f64.to_radians().tan();
-        let on_slope = |step: f64| rules().classify(&field(|x, y| g * y + if x >= 0.1 { step } else { 0.0 }, 20, 0.0002));
+        let on_slope = |step: f64| {
+            rules().classify(&field(
+                |x, y| g * y + if x >= 0.1 { step } else { 0.0 },
+                20,
+                0.0002,
+            ))
+        };
         assert_eq!(on_slope(0.0), Verdict::Traversable);
         assert_eq!(on_slope(0.05), Verdict::Traversable);
         assert_ne!(on_slope(0.10), Verdict::Traversable);
@@ -299,14 +342,22 @@ mod tests {
             for dir in [0.0f64, 22.5, 45.0, 67.5] {
                 let (c, s) = (dir.to_radians().cos(), dir.to_radians().sin());
                 let g = f64::tan(f64::to_radians(deg));
-                assert_eq!(rules().classify(&field(|x, y| g * (c * x + s * y), 20, 0.0003)), Verdict::Traversable, "{deg} deg at {dir}");
+                assert_eq!(
+                    rules().classify(&field(|x, y| g * (c * x + s * y), 20, 0.0003)),
+                    Verdict::Traversable,
+                    "{deg} deg at {dir}"
+                );
             }
         }
         for deg in [24.0, 30.0, 35.0] {
             for dir in [0.0f64, 22.5, 45.0] {
                 let (c, s) = (dir.to_radians().cos(), dir.to_radians().sin());
                 let g = f64::tan(f64::to_radians(deg));
-                assert_ne!(rules().classify(&field(|x, y| g * (c * x + s * y), 20, 0.0003)), Verdict::Traversable, "{deg} deg at {dir}");
+                assert_ne!(
+                    rules().classify(&field(|x, y| g * (c * x + s * y), 20, 0.0003)),
+                    Verdict::Traversable,
+                    "{deg} deg at {dir}"
+                );
             }
         }
     }
@@ -323,7 +374,10 @@ mod tests {
 
     #[test]
     fn rough_cells_fail_on_variance() {
-        assert_eq!(rules().classify(&field(|_, _| 0.0, 20, 0.003)), Verdict::Variance);
+        assert_eq!(
+            rules().classify(&field(|_, _| 0.0, 20, 0.003)),
+            Verdict::Variance
+        );
     }
 
     #[test]

@@ -103,9 +103,18 @@ impl Default for Config {
             phi_max_deg: 23.0,
             max_range_m: 30.0,
             isolated_pairs: vec![
-                IsolatedPair { knn_k: 2, dist_k_m: 0.08 },
-                IsolatedPair { knn_k: 3, dist_k_m: 0.12 },
-                IsolatedPair { knn_k: 6, dist_k_m: 0.19 },
+                IsolatedPair {
+                    knn_k: 2,
+                    dist_k_m: 0.08,
+                },
+                IsolatedPair {
+                    knn_k: 3,
+                    dist_k_m: 0.12,
+                },
+                IsolatedPair {
+                    knn_k: 6,
+                    dist_k_m: 0.19,
+                },
             ],
             ceiling_radius_cells: 3,
             processing_distance_m: 12.0,
@@ -142,25 +151,75 @@ pub enum ConfigError {
 impl Config {
     /// Checks ranges so the mapper never divides by zero or allocates absurd windows.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        let bad = |ok: bool, m: &'static str| if ok { Ok(()) } else { Err(ConfigError::OutOfRange(m)) };
-        bad(self.grid_size_m > 0.01 && self.grid_size_m <= 5.0, "grid_size_m must be in (0.01, 5]")?;
-        bad((8..=4000).contains(&self.num_of_grid_cells), "num_of_grid_cells must be in 8..=4000")?;
-        bad((4..=512).contains(&self.tile_cells), "tile_cells must be in 4..=512")?;
+        let bad = |ok: bool, m: &'static str| {
+            if ok {
+                Ok(())
+            } else {
+                Err(ConfigError::OutOfRange(m))
+            }
+        };
+        bad(
+            self.grid_size_m > 0.01 && self.grid_size_m <= 5.0,
+            "grid_size_m must be in (0.01, 5]",
+        )?;
+        bad(
+            (8..=4000).contains(&self.num_of_grid_cells),
+            "num_of_grid_cells must be in 8..=4000",
+        )?;
+        bad(
+            (4..=512).contains(&self.tile_cells),
+            "tile_cells must be in 4..=512",
+        )?;
         bad(self.h_r_m > 0.0, "h_r_m must be positive")?;
-        bad((0.0..89.0).contains(&self.phi_max_deg), "phi_max_deg must be in [0, 89)")?;
-        bad((0.0..89.0).contains(&self.alpha_deg), "alpha_deg must be in [0, 89)")?;
+        bad(
+            (0.0..89.0).contains(&self.phi_max_deg),
+            "phi_max_deg must be in [0, 89)",
+        )?;
+        bad(
+            (0.0..89.0).contains(&self.alpha_deg),
+            "alpha_deg must be in [0, 89)",
+        )?;
         bad(self.max_range_m > 0.0, "max_range_m must be positive")?;
-        bad(self.processing_distance_m > 0.0, "processing_distance_m must be positive")?;
-        bad(self.max_variance_m2 > 0.0, "max_variance_m2 must be positive")?;
+        bad(
+            self.processing_distance_m > 0.0,
+            "processing_distance_m must be positive",
+        )?;
+        bad(
+            self.max_variance_m2 > 0.0,
+            "max_variance_m2 must be positive",
+        )?;
         bad(self.max_step_m > 0.0, "max_step_m must be positive")?;
-        bad(self.evidence_epoch_s > 0.0, "evidence_epoch_s must be positive")?;
-        bad(self.obstacle_distance_m >= 0.0, "obstacle_distance_m must be >= 0")?;
-        bad(self.cost_distance_m >= self.obstacle_distance_m, "cost_distance_m must be >= obstacle_distance_m")?;
+        bad(
+            self.evidence_epoch_s > 0.0,
+            "evidence_epoch_s must be positive",
+        )?;
+        bad(
+            self.obstacle_distance_m >= 0.0,
+            "obstacle_distance_m must be >= 0",
+        )?;
+        bad(
+            self.cost_distance_m >= self.obstacle_distance_m,
+            "cost_distance_m must be >= obstacle_distance_m",
+        )?;
         bad(self.cost_decay_m > 0.0, "cost_decay_m must be positive")?;
-        bad(self.ceiling_radius_cells <= 16, "ceiling_radius_cells must be <= 16")?;
-        bad(self.isolated_pairs.iter().all(|p| (1..=32).contains(&p.knn_k) && p.dist_k_m > 0.0), "isolated_pairs: knn_k in 1..=32, dist_k_m > 0")?;
-        bad(self.footprint_length_m >= 0.0 && self.footprint_width_m >= 0.0, "footprint must be >= 0")?;
-        bad(self.lowest_beam_deg < 0.0 && self.lowest_beam_deg > -89.0, "lowest_beam_deg must be in (-89, 0)")?;
+        bad(
+            self.ceiling_radius_cells <= 16,
+            "ceiling_radius_cells must be <= 16",
+        )?;
+        bad(
+            self.isolated_pairs
+                .iter()
+                .all(|p| (1..=32).contains(&p.knn_k) && p.dist_k_m > 0.0),
+            "isolated_pairs: knn_k in 1..=32, dist_k_m > 0",
+        )?;
+        bad(
+            self.footprint_length_m >= 0.0 && self.footprint_width_m >= 0.0,
+            "footprint must be >= 0",
+        )?;
+        bad(
+            self.lowest_beam_deg < 0.0 && self.lowest_beam_deg > -89.0,
+            "lowest_beam_deg must be in (-89, 0)",
+        )?;
         Ok(())
     }
 
@@ -171,7 +230,10 @@ impl Config {
 
     /// The lattice the mapper's cells live on.
     pub fn lattice(&self) -> common::grid::Lattice {
-        common::grid::Lattice { cell_size_m: self.grid_size_m as f32, tile_cells: self.tile_cells }
+        common::grid::Lattice {
+            cell_size_m: self.grid_size_m as f32,
+            tile_cells: self.tile_cells,
+        }
     }
 
     /// Radius around the robot inside which the LiDAR cannot see flat ground, metres.
@@ -195,9 +257,18 @@ mod tests {
 
     #[test]
     fn bad_values_are_refused() {
-        let c = Config { grid_size_m: 0.0, ..Config::default() };
+        let c = Config {
+            grid_size_m: 0.0,
+            ..Config::default()
+        };
         assert!(c.validate().is_err());
-        let c = Config { isolated_pairs: vec![IsolatedPair { knn_k: 0, dist_k_m: 0.1 }], ..Config::default() };
+        let c = Config {
+            isolated_pairs: vec![IsolatedPair {
+                knn_k: 0,
+                dist_k_m: 0.1,
+            }],
+            ..Config::default()
+        };
         assert!(c.validate().is_err());
     }
 

@@ -8,7 +8,13 @@ use std::num::NonZeroUsize;
 /// Step 1: keeps a point unless `z_p > z_r + h_r + tan(phi_max) * dist_xy(p, r)`, and drops
 /// points farther than `max_range_m` horizontally. `robot` is the map-frame position of the
 /// ground under the robot. Returns how many points were dropped.
-pub fn height_filter(points: &mut Vec<[f32; 3]>, robot: [f64; 3], h_r_m: f64, phi_max_rad: f64, max_range_m: f64) -> usize {
+pub fn height_filter(
+    points: &mut Vec<[f32; 3]>,
+    robot: [f64; 3],
+    h_r_m: f64,
+    phi_max_rad: f64,
+    max_range_m: f64,
+) -> usize {
     let before = points.len();
     let tan_phi = phi_max_rad.tan();
     let r2 = max_range_m * max_range_m;
@@ -35,12 +41,21 @@ pub fn isolated_point_filter(points: &mut Vec<[f32; 3]>, pairs: &[IsolatedPair])
     };
     // A point passes a pair for sure if its k-th neighbour is within dist_k; the search radius
     // below is the largest k-th distance that can still give a mean within dist_k.
-    let r_max = pairs.iter().map(|p| p.knn_k as f64 * p.dist_k_m).fold(0.0, f64::max) as f32;
-    let Some(k_query) = NonZeroUsize::new(k_max + 1) else { return 0 };
+    let r_max = pairs
+        .iter()
+        .map(|p| p.knn_k as f64 * p.dist_k_m)
+        .fold(0.0, f64::max) as f32;
+    let Some(k_query) = NonZeroUsize::new(k_max + 1) else {
+        return 0;
+    };
     let keep: Vec<bool> = points
         .iter()
         .map(|q| {
-            let nn = tree.query(q).nearest_n::<SquaredEuclidean<f32>>(k_query).within(r_max * r_max).execute();
+            let nn = tree
+                .query(q)
+                .nearest_n::<SquaredEuclidean<f32>>(k_query)
+                .within(r_max * r_max)
+                .execute();
             // The point itself comes back at distance 0; skip one zero-distance entry.
             let dists: Vec<f32> = nn.iter().skip(1).map(|n| n.distance.sqrt()).collect();
             pairs.iter().all(|pair| {
@@ -67,7 +82,13 @@ mod tests {
 
     #[test]
     fn height_filter_drops_points_above_the_climb_cone() {
-        let mut pts = vec![[0.0, 0.0, 0.9], [0.0, 0.0, 1.1], [5.0, 0.0, 3.0], [5.0, 0.0, 3.2], [40.0, 0.0, 0.0]];
+        let mut pts = vec![
+            [0.0, 0.0, 0.9],
+            [0.0, 0.0, 1.1],
+            [5.0, 0.0, 3.0],
+            [5.0, 0.0, 3.2],
+            [40.0, 0.0, 0.0],
+        ];
         // Cone at 5 m: 1.0 + 5 tan(23 deg) = 3.12 m.
         let dropped = height_filter(&mut pts, [0.0, 0.0, 0.0], 1.0, 23f64.to_radians(), 30.0);
         assert_eq!(dropped, 3);

@@ -49,11 +49,19 @@ impl RobotPose {
         let up = pose_map_sensor.rotation * nalgebra::Vector3::z();
         let ground = pose_map_sensor.translation.vector - up * sensor_height_m;
         let fwd = pose_map_sensor.rotation * nalgebra::Vector3::x();
-        Self { x_m: ground.x, y_m: ground.y, z_m: ground.z, yaw_rad: fwd.y.atan2(fwd.x) }
+        Self {
+            x_m: ground.x,
+            y_m: ground.y,
+            z_m: ground.z,
+            yaw_rad: fwd.y.atan2(fwd.x),
+        }
     }
 
     fn is_finite(&self) -> bool {
-        self.x_m.is_finite() && self.y_m.is_finite() && self.z_m.is_finite() && self.yaw_rad.is_finite()
+        self.x_m.is_finite()
+            && self.y_m.is_finite()
+            && self.z_m.is_finite()
+            && self.yaw_rad.is_finite()
     }
 }
 
@@ -160,7 +168,12 @@ struct Moments {
 
 impl Default for Moments {
     fn default() -> Self {
-        Self { n: 0, sz: 0.0, szz: 0.0, zmax: f32::NEG_INFINITY }
+        Self {
+            n: 0,
+            sz: 0.0,
+            szz: 0.0,
+            zmax: f32::NEG_INFINITY,
+        }
     }
 }
 
@@ -172,7 +185,12 @@ impl Moments {
         self.zmax = self.zmax.max(z as f32);
     }
     fn merged(&self, o: &Moments) -> Moments {
-        Moments { n: self.n + o.n, sz: self.sz + o.sz, szz: self.szz + o.szz, zmax: self.zmax.max(o.zmax) }
+        Moments {
+            n: self.n + o.n,
+            sz: self.sz + o.sz,
+            szz: self.szz + o.szz,
+            zmax: self.zmax.max(o.zmax),
+        }
     }
     fn stats(&self) -> CellStats {
         if self.n == 0 {
@@ -180,7 +198,12 @@ impl Moments {
         }
         let n = f64::from(self.n);
         let mean = self.sz / n;
-        CellStats { n: self.n, mean_m: mean, var_m2: (self.szz / n - mean * mean).max(0.0), max_m: f64::from(self.zmax) }
+        CellStats {
+            n: self.n,
+            mean_m: mean,
+            var_m2: (self.szz / n - mean * mean).max(0.0),
+            max_m: f64::from(self.zmax),
+        }
     }
 }
 
@@ -257,10 +280,14 @@ impl Window {
     }
     fn local(&self, cx: i64, cy: i64) -> Option<usize> {
         let (x, y) = (cx - self.cx0 + self.half, cy - self.cy0 + self.half);
-        (x >= 0 && y >= 0 && (x as usize) < self.side && (y as usize) < self.side).then(|| y as usize * self.side + x as usize)
+        (x >= 0 && y >= 0 && (x as usize) < self.side && (y as usize) < self.side)
+            .then(|| y as usize * self.side + x as usize)
     }
     fn global(&self, i: usize) -> (i64, i64) {
-        ((i % self.side) as i64 - self.half + self.cx0, (i / self.side) as i64 - self.half + self.cy0)
+        (
+            (i % self.side) as i64 - self.half + self.cx0,
+            (i / self.side) as i64 - self.half + self.cy0,
+        )
     }
     fn clear(&mut self) {
         for &i in &self.touched {
@@ -365,7 +392,13 @@ impl Mapper {
     }
 
     /// One LiDAR scan (sensor frame) with the sensor's map pose.
-    pub fn update_scan(&mut self, scan: &Scan, pose_map_sensor: &Isometry3<f64>, robot: &RobotPose, t_s: f64) -> Result<UpdateReport, MapError> {
+    pub fn update_scan(
+        &mut self,
+        scan: &Scan,
+        pose_map_sensor: &Isometry3<f64>,
+        robot: &RobotPose,
+        t_s: f64,
+    ) -> Result<UpdateReport, MapError> {
         let m = pose_map_sensor.to_homogeneous().cast::<f32>();
         let pts: Vec<[f32; 3]> = scan
             .points
@@ -379,31 +412,54 @@ impl Mapper {
     }
 
     /// The map cloud around the robot (map frame), e.g. from SLAM.
-    pub fn update_cloud(&mut self, cloud_map: &[Point], robot: &RobotPose, t_s: f64) -> Result<UpdateReport, MapError> {
+    pub fn update_cloud(
+        &mut self,
+        cloud_map: &[Point],
+        robot: &RobotPose,
+        t_s: f64,
+    ) -> Result<UpdateReport, MapError> {
         let pts = cloud_map.iter().map(|p| [p.x, p.y, p.z]).collect();
         self.update_points(pts, robot, t_s, Evidence::MapCloud)
     }
 
     /// The core step: map-frame points, the robot, the time, and how to treat the points.
-    pub fn update_points(&mut self, mut pts: Vec<[f32; 3]>, robot: &RobotPose, t_s: f64, kind: Evidence) -> Result<UpdateReport, MapError> {
+    pub fn update_points(
+        &mut self,
+        mut pts: Vec<[f32; 3]>,
+        robot: &RobotPose,
+        t_s: f64,
+        kind: Evidence,
+    ) -> Result<UpdateReport, MapError> {
         if !robot.is_finite() || !t_s.is_finite() {
             return Err(MapError::BadPose);
         }
         if let Some(prev) = self.last_t_s {
             if t_s < prev {
-                return Err(MapError::TimeWentBack { t_s, previous_s: prev });
+                return Err(MapError::TimeWentBack {
+                    t_s,
+                    previous_s: prev,
+                });
             }
         }
         self.last_t_s = Some(t_s);
         self.robot = Some(*robot);
         self.scan_id = self.scan_id.wrapping_add(1);
-        let mut rep = UpdateReport { points_in: pts.len(), ..Default::default() };
+        let mut rep = UpdateReport {
+            points_in: pts.len(),
+            ..Default::default()
+        };
         let before = pts.len();
         pts.retain(|p| p.iter().all(|v| v.is_finite()));
         rep.dropped_non_finite = before - pts.len();
 
         // 1-2. Height filter around the robot, isolated points.
-        rep.dropped_height = filters::height_filter(&mut pts, [robot.x_m, robot.y_m, robot.z_m], self.cfg.h_r_m, self.cfg.phi_max_deg.to_radians(), self.cfg.max_range_m);
+        rep.dropped_height = filters::height_filter(
+            &mut pts,
+            [robot.x_m, robot.y_m, robot.z_m],
+            self.cfg.h_r_m,
+            self.cfg.phi_max_deg.to_radians(),
+            self.cfg.max_range_m,
+        );
         rep.dropped_isolated = filters::isolated_point_filter(&mut pts, &self.cfg.isolated_pairs);
 
         // 3. Binning with the per-cell ceiling, into the scratch window.
@@ -448,7 +504,10 @@ impl Mapper {
                 rep.dropped_ceiling += 1;
                 continue;
             }
-            let high = stray_on && ref_z.get(&i).is_some_and(|r| p[2] > r + self.cfg.stray_height_m as f32);
+            let high = stray_on
+                && ref_z
+                    .get(&i)
+                    .is_some_and(|r| p[2] > r + self.cfg.stray_height_m as f32);
             if high {
                 self.win.high[i].add(f64::from(p[2]));
             } else {
@@ -579,7 +638,10 @@ impl Mapper {
     }
 
     fn footprint_cells(&self, robot: &RobotPose) -> Vec<(i64, i64)> {
-        let (hl, hw) = (self.cfg.footprint_length_m / 2.0, self.cfg.footprint_width_m / 2.0);
+        let (hl, hw) = (
+            self.cfg.footprint_length_m / 2.0,
+            self.cfg.footprint_width_m / 2.0,
+        );
         if hl <= 0.0 || hw <= 0.0 {
             return Vec::new();
         }
@@ -624,7 +686,11 @@ impl Mapper {
                 }
             }
         } else {
-            let add = |win: &mut Window, cx: i64, cy: i64, todo: &mut Vec<(i64, i64)>, pending: &mut FastSet<(i64, i64)>| {
+            let add = |win: &mut Window,
+                       cx: i64,
+                       cy: i64,
+                       todo: &mut Vec<(i64, i64)>,
+                       pending: &mut FastSet<(i64, i64)>| {
                 if let Some(i) = win.local(cx, cy) {
                     if win.mark[i] != g {
                         win.mark[i] = g;
@@ -637,12 +703,23 @@ impl Mapper {
             for &(cx, cy) in &dirty {
                 for dy in -2..=2 {
                     for dx in -2..=2 {
-                        add(&mut self.win, cx + dx, cy + dy, &mut todo, &mut self.pending);
+                        add(
+                            &mut self.win,
+                            cx + dx,
+                            cy + dy,
+                            &mut todo,
+                            &mut self.pending,
+                        );
                     }
                 }
             }
             // Cells that got evidence while far away and are now within reach.
-            let mut now: Vec<(i64, i64)> = self.pending.iter().copied().filter(|&(cx, cy)| within(cx, cy)).collect();
+            let mut now: Vec<(i64, i64)> = self
+                .pending
+                .iter()
+                .copied()
+                .filter(|&(cx, cy)| within(cx, cy))
+                .collect();
             now.sort_unstable();
             for (cx, cy) in now {
                 self.pending.remove(&(cx, cy));
@@ -733,38 +810,68 @@ impl Mapper {
 
     /// The final cell: state and cost from the class and the nearest inflation source.
     fn output_cell(&self, cx: i64, cy: i64) -> Cell {
-        let Some(d) = self.data(cx, cy) else { return Cell::UNKNOWN };
+        let Some(d) = self.data(cx, cy) else {
+            return Cell::UNKNOWN;
+        };
         let ev = d.evidence().stats();
-        let height_m = if d.driven && ev.n < self.rules.min_points() { f64::from(d.driven_z) } else { ev.mean_m };
-        let height_cm = (height_m * 100.0).round().clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16;
+        let height_m = if d.driven && ev.n < self.rules.min_points() {
+            f64::from(d.driven_z)
+        } else {
+            ev.mean_m
+        };
+        let height_cm = (height_m * 100.0)
+            .round()
+            .clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16;
         let (state, cost) = match d.class {
             Class::Unknown | Class::Undecided => return Cell::UNKNOWN,
             Class::Obstacle | Class::NegativeObstacle => (CellState::Obstacle, 255),
             Class::Traversable => {
-                let near = self.offsets.iter().find(|(_, dx, dy)| self.data(cx + dx, cy + dy).is_some_and(|n| self.is_source(n.class)));
+                let near = self.offsets.iter().find(|(_, dx, dy)| {
+                    self.data(cx + dx, cy + dy)
+                        .is_some_and(|n| self.is_source(n.class))
+                });
                 match near {
-                    Some((dist, _, _)) if *dist <= self.cfg.obstacle_distance_m + 1e-9 => (CellState::Inflated, 254),
+                    Some((dist, _, _)) if *dist <= self.cfg.obstacle_distance_m + 1e-9 => {
+                        (CellState::Inflated, 254)
+                    }
                     Some((dist, _, _)) => {
-                        let c = f64::from(self.cfg.cost_max) * (-(dist - self.cfg.obstacle_distance_m) / self.cfg.cost_decay_m).exp();
+                        let c = f64::from(self.cfg.cost_max)
+                            * (-(dist - self.cfg.obstacle_distance_m) / self.cfg.cost_decay_m)
+                                .exp();
                         (CellState::Traversable, c.round() as u8)
                     }
                     None => (CellState::Traversable, 0),
                 }
             }
         };
-        let height_cm = if d.class == Class::NegativeObstacle && ev.n == 0 { 0 } else { height_cm };
-        Cell { state, cost, height_cm, hits: d.hits.max(1), stamp_s: d.stamp_s }
+        let height_cm = if d.class == Class::NegativeObstacle && ev.n == 0 {
+            0
+        } else {
+            height_cm
+        };
+        Cell {
+            state,
+            cost,
+            height_cm,
+            hits: d.hits.max(1),
+            stamp_s: d.stamp_s,
+        }
     }
 
     fn write_live(&mut self, cx: i64, cy: i64, cell: Cell) {
         let (t, (c, r)) = self.lattice.tile_of_cell(cx, cy);
-        let Some(&s) = self.slot_of.get(&t) else { return };
+        let Some(&s) = self.slot_of.get(&t) else {
+            return;
+        };
         let n = self.lattice.tile_cells as usize;
         let k = r as usize * n + c as usize;
         let slot = &mut self.slots[s];
         slot.live[k] = cell;
         let p = &slot.published.cells[k];
-        if p.state != cell.state || p.cost != cell.cost || (p.height_cm.wrapping_sub(cell.height_cm)).abs() >= HEIGHT_HYSTERESIS_CM {
+        if p.state != cell.state
+            || p.cost != cell.cost
+            || (p.height_cm.wrapping_sub(cell.height_cm)).abs() >= HEIGHT_HYSTERESIS_CM
+        {
             slot.changed = true;
         }
     }
@@ -772,7 +879,11 @@ impl Mapper {
     fn take_tiles(&mut self, t_s: f64, force: bool) -> Vec<Tile> {
         let mut out = Vec::new();
         for slot in &mut self.slots {
-            if slot.changed && (force || t_s - slot.last_publish_s >= TILE_MIN_INTERVAL_S || slot.published.version == 0) {
+            if slot.changed
+                && (force
+                    || t_s - slot.last_publish_s >= TILE_MIN_INTERVAL_S
+                    || slot.published.version == 0)
+            {
                 slot.changed = false;
                 slot.last_publish_s = t_s;
                 slot.published.version += 1;
@@ -814,7 +925,10 @@ impl Mapper {
                 if old != Class::Unknown && old != Class::NegativeObstacle {
                     continue;
                 }
-                if self.data(cx, cy).is_some_and(|d| d.evidence().n > 0 || d.driven) {
+                if self
+                    .data(cx, cy)
+                    .is_some_and(|d| d.evidence().n > 0 || d.driven)
+                {
                     continue;
                 }
                 let (ux, uy) = (dx / dist, dy / dist);
@@ -823,18 +937,31 @@ impl Mapper {
                 let Some(edge) = self.data(bx, by).filter(|d| d.class == Class::Traversable) else {
                     continue;
                 };
-                let h_edge = if edge.evidence().n > 0 { edge.evidence().stats().mean_m } else { f64::from(edge.driven_z) };
+                let h_edge = if edge.evidence().n > 0 {
+                    edge.evidence().stats().mean_m
+                } else {
+                    f64::from(edge.driven_z)
+                };
                 // Walk outwards: the first observed cell beyond tells whether the surface continues.
                 let mut drop = true;
                 for k in 1..=beyond_cells {
-                    let (qx, qy) = self.lattice.cell_of(px + ux * l * k as f64, py + uy * l * k as f64);
-                    if let Some(q) = self.data(qx, qy).filter(|q| q.evidence().n >= self.rules.min_points()) {
+                    let (qx, qy) = self
+                        .lattice
+                        .cell_of(px + ux * l * k as f64, py + uy * l * k as f64);
+                    if let Some(q) = self
+                        .data(qx, qy)
+                        .filter(|q| q.evidence().n >= self.rules.min_points())
+                    {
                         let h_q = q.evidence().stats().mean_m;
                         drop = h_q < h_edge - drop_m - l * (k + 1) as f64 * tan_phi;
                         break;
                     }
                 }
-                let new = if drop { Class::NegativeObstacle } else { Class::Unknown };
+                let new = if drop {
+                    Class::NegativeObstacle
+                } else {
+                    Class::Unknown
+                };
                 if new != old {
                     self.data_mut(cx, cy).class = new;
                     changed.push((cx, cy));
@@ -854,7 +981,12 @@ impl Mapper {
                     if st.n >= min {
                         *s = st;
                     } else if d.driven {
-                        *s = CellStats { n: min, mean_m: f64::from(d.driven_z), var_m2: 0.0, max_m: f64::from(d.driven_z) };
+                        *s = CellStats {
+                            n: min,
+                            mean_m: f64::from(d.driven_z),
+                            var_m2: 0.0,
+                            max_m: f64::from(d.driven_z),
+                        };
                     } else {
                         s.n = st.n;
                     }
@@ -895,7 +1027,9 @@ impl Mapper {
     pub fn cell(&self, cx: i64, cy: i64) -> Cell {
         let (t, (c, r)) = self.lattice.tile_of_cell(cx, cy);
         match self.slot_of.get(&t) {
-            Some(&s) => self.slots[s].live[r as usize * self.lattice.tile_cells as usize + c as usize],
+            Some(&s) => {
+                self.slots[s].live[r as usize * self.lattice.tile_cells as usize + c as usize]
+            }
             None => Cell::UNKNOWN,
         }
     }
@@ -924,7 +1058,12 @@ impl Mapper {
         let mut v: Vec<Tile> = self
             .slots
             .iter()
-            .map(|s| Tile { index: s.index, lattice: self.lattice, version: s.published.version, cells: s.live.clone() })
+            .map(|s| Tile {
+                index: s.index,
+                lattice: self.lattice,
+                version: s.published.version,
+                cells: s.live.clone(),
+            })
             .collect();
         v.sort_by_key(|t| t.index);
         v
@@ -946,13 +1085,23 @@ impl Mapper {
                 cells.push(self.cell(min_cx + x, min_cy + y));
             }
         }
-        PlannerView { lattice: self.lattice, min_cx, min_cy, width, height, cells }
+        PlannerView {
+            lattice: self.lattice,
+            min_cx,
+            min_cy,
+            width,
+            height,
+            cells,
+        }
     }
 
     /// Global cell index bounds (min, max inclusive) of all tiles held, if any.
     pub fn bounds(&self) -> Option<((i64, i64), (i64, i64))> {
         let n = i64::from(self.lattice.tile_cells);
-        let mut it = self.slots.iter().map(|s| self.lattice.tile_first_cell(s.index));
+        let mut it = self
+            .slots
+            .iter()
+            .map(|s| self.lattice.tile_first_cell(s.index));
         let first = it.next()?;
         let (mut lo, mut hi) = (first, first);
         for (x, y) in it {
@@ -966,6 +1115,8 @@ impl Mapper {
 impl Mapper {
     /// Evidence statistics of one cell (diagnostics).
     pub fn debug_stats(&self, cx: i64, cy: i64) -> CellStats {
-        self.data(cx, cy).map(|d| d.evidence().stats()).unwrap_or_default()
+        self.data(cx, cy)
+            .map(|d| d.evidence().stats())
+            .unwrap_or_default()
     }
 }

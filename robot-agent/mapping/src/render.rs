@@ -31,15 +31,29 @@ pub struct RenderWindow {
 
 /// Colours: traversable green, inflated orange, obstacle red, unknown dark grey, each shaded by
 /// the height (brighter = higher) and by a hillshade so curbs and slopes show.
-pub fn render_png(mapper: &Mapper, window: Option<RenderWindow>, px_per_cell: u32, path_m: &[(f64, f64)], out: impl Write) -> Result<(u32, u32), RenderError> {
+pub fn render_png(
+    mapper: &Mapper,
+    window: Option<RenderWindow>,
+    px_per_cell: u32,
+    path_m: &[(f64, f64)],
+    out: impl Write,
+) -> Result<(u32, u32), RenderError> {
     let w = match window {
         Some(w) => w,
         None => {
             let ((x0, y0), (x1, y1)) = mapper.bounds().ok_or(RenderError::Empty)?;
-            RenderWindow { min_cx: x0, min_cy: y0, max_cx: x1, max_cy: y1 }
+            RenderWindow {
+                min_cx: x0,
+                min_cy: y0,
+                max_cx: x1,
+                max_cy: y1,
+            }
         }
     };
-    let (cw, ch) = ((w.max_cx - w.min_cx + 1).max(1) as u32, (w.max_cy - w.min_cy + 1).max(1) as u32);
+    let (cw, ch) = (
+        (w.max_cx - w.min_cx + 1).max(1) as u32,
+        (w.max_cy - w.min_cy + 1).max(1) as u32,
+    );
     let s = px_per_cell.clamp(1, 16);
     let (pw, ph) = (cw * s, ch * s);
     // Height range over known cells for the shading.
@@ -64,7 +78,9 @@ pub fn render_png(mapper: &Mapper, window: Option<RenderWindow>, px_per_cell: u3
             let shade = h.map(|h| 0.55 + 0.45 * (h - lo) / span).unwrap_or(0.5);
             // Hillshade from the north-west: light falls on faces rising towards it.
             let hill = match (h, mapper.height_m(cx - 1, cy), mapper.height_m(cx, cy + 1)) {
-                (Some(h), Some(hw), Some(hn)) => (1.0 + ((h - hw) - (hn - h)) / l * 0.8).clamp(0.6, 1.4),
+                (Some(h), Some(hw), Some(hn)) => {
+                    (1.0 + ((h - hw) - (hn - h)) / l * 0.8).clamp(0.6, 1.4)
+                }
                 _ => 1.0,
             };
             let base: [f64; 3] = match cell.state {
@@ -74,7 +90,11 @@ pub fn render_png(mapper: &Mapper, window: Option<RenderWindow>, px_per_cell: u3
                 CellState::Unknown if h.is_some() => [110.0, 110.0, 150.0],
                 CellState::Unknown => [35.0, 35.0, 35.0],
             };
-            let k = if cell.state == CellState::Unknown && h.is_none() { 1.0 } else { shade * hill };
+            let k = if cell.state == CellState::Unknown && h.is_none() {
+                1.0
+            } else {
+                shade * hill
+            };
             let c = base.map(|v| (v * k).clamp(0.0, 255.0) as u8);
             for yy in 0..s {
                 for xx in 0..s {

@@ -20,7 +20,14 @@ pub struct LidarSpec {
 impl LidarSpec {
     /// Velodyne VLP-16 at 10 Hz (0.2 deg azimuth steps, 28 800 beams).
     pub fn vlp16() -> Self {
-        Self { rings: 16, min_elev_deg: -15.0, max_elev_deg: 15.0, az_step_deg: 0.2, max_range_m: 40.0, noise_m: 0.01 }
+        Self {
+            rings: 16,
+            min_elev_deg: -15.0,
+            max_elev_deg: 15.0,
+            az_step_deg: 0.2,
+            max_range_m: 40.0,
+            noise_m: 0.01,
+        }
     }
 }
 
@@ -50,11 +57,18 @@ impl Rng {
 
 /// Casts every beam of `spec` from `sensor` (map frame, sensor level) into the height field
 /// `height(x, y)` (a 2.5D world: every obstacle is a column) and returns the map-frame hits.
-pub fn cast_scan(height: &dyn Fn(f64, f64) -> f64, sensor: [f64; 3], spec: &LidarSpec, rng: &mut Rng) -> Vec<[f32; 3]> {
+pub fn cast_scan(
+    height: &dyn Fn(f64, f64) -> f64,
+    sensor: [f64; 3],
+    spec: &LidarSpec,
+    rng: &mut Rng,
+) -> Vec<[f32; 3]> {
     let mut out = Vec::new();
     let n_az = (360.0 / spec.az_step_deg).round() as u32;
     for ring in 0..spec.rings {
-        let e = spec.min_elev_deg + (spec.max_elev_deg - spec.min_elev_deg) * f64::from(ring) / f64::from(spec.rings.max(2) - 1);
+        let e = spec.min_elev_deg
+            + (spec.max_elev_deg - spec.min_elev_deg) * f64::from(ring)
+                / f64::from(spec.rings.max(2) - 1);
         let (ce, se) = (e.to_radians().cos(), e.to_radians().sin());
         for a in 0..n_az {
             let az = (f64::from(a) * spec.az_step_deg).to_radians();
@@ -80,7 +94,11 @@ pub fn cast_scan(height: &dyn Fn(f64, f64) -> f64, sensor: [f64; 3], spec: &Lida
                         }
                     }
                     let rr = hi + rng.normal() * spec.noise_m;
-                    out.push([(sensor[0] + dx * rr) as f32, (sensor[1] + dy * rr) as f32, (sensor[2] + dz * rr) as f32]);
+                    out.push([
+                        (sensor[0] + dx * rr) as f32,
+                        (sensor[1] + dy * rr) as f32,
+                        (sensor[2] + dz * rr) as f32,
+                    ]);
                     break;
                 }
                 prev_r = r;

@@ -8,20 +8,39 @@ use std::collections::BTreeMap;
 const SENSOR_H: f64 = 0.7;
 
 fn spec() -> LidarSpec {
-    LidarSpec { az_step_deg: 0.4, max_range_m: 25.0, ..LidarSpec::vlp16() }
+    LidarSpec {
+        az_step_deg: 0.4,
+        max_range_m: 25.0,
+        ..LidarSpec::vlp16()
+    }
 }
 
 /// Drives the robot along `path` (x, y, t) through a time-varying world, one scan per pose.
-fn drive(m: &mut Mapper, world: &dyn Fn(f64, f64, f64) -> f64, path: &[(f64, f64, f64)]) -> Vec<crate::UpdateReport> {
+fn drive(
+    m: &mut Mapper,
+    world: &dyn Fn(f64, f64, f64) -> f64,
+    path: &[(f64, f64, f64)],
+) -> Vec<crate::UpdateReport> {
     let mut rng = Rng::new(7);
     let mut reps = Vec::new();
-    for w in path.windows(2).map(|w| (w[0], Some(w[1]))).chain(path.last().map(|p| (*p, None))) {
+    for w in path
+        .windows(2)
+        .map(|w| (w[0], Some(w[1])))
+        .chain(path.last().map(|p| (*p, None)))
+    {
         let ((x, y, t), next) = w;
-        let yaw = next.map(|(nx, ny, _)| (ny - y).atan2(nx - x)).unwrap_or(0.0);
+        let yaw = next
+            .map(|(nx, ny, _)| (ny - y).atan2(nx - x))
+            .unwrap_or(0.0);
         let z = world(x, y, t);
         let h = |px: f64, py: f64| world(px, py, t);
         let pts = cast_scan(&h, [x, y, z + SENSOR_H], &spec(), &mut rng);
-        let robot = RobotPose { x_m: x, y_m: y, z_m: z, yaw_rad: yaw };
+        let robot = RobotPose {
+            x_m: x,
+            y_m: y,
+            z_m: z,
+            yaw_rad: yaw,
+        };
         reps.push(m.update_points(pts, &robot, t, Evidence::Scan).unwrap());
     }
     reps
@@ -32,7 +51,11 @@ fn line(from: (f64, f64), to: (f64, f64), t0: f64, secs: f64) -> Vec<(f64, f64, 
     (0..=n)
         .map(|i| {
             let f = i as f64 / n as f64;
-            (from.0 + (to.0 - from.0) * f, from.1 + (to.1 - from.1) * f, t0 + i as f64 * 0.1)
+            (
+                from.0 + (to.0 - from.0) * f,
+                from.1 + (to.1 - from.1) * f,
+                t0 + i as f64 * 0.1,
+            )
         })
         .collect()
 }
@@ -60,14 +83,21 @@ fn count(v: &[Class], f: impl Fn(Class) -> bool) -> usize {
 #[test]
 fn flat_ground_has_no_obstacles() {
     let mut m = Mapper::new(Config::default()).unwrap();
-    drive(&mut m, &|_, _, _| 0.0, &line((-2.0, 0.0), (2.0, 0.0), 0.0, 4.0));
+    drive(
+        &mut m,
+        &|_, _, _| 0.0,
+        &line((-2.0, 0.0), (2.0, 0.0), 0.0, 4.0),
+    );
     let v = classes_in(&m, -10.0, -10.0, 10.0, 10.0);
     let known = count(&v, |c| c == Class::Traversable || c.is_obstacle());
     let obst = count(&v, Class::is_obstacle);
     assert!(known > 3000, "only {known} cells classified");
     assert_eq!(obst, 0, "{obst} false obstacles of {known}");
     // The footprint is traversable even inside the blind zone.
-    assert_eq!(m.class(cell_of(&m, 2.0, 0.0).0, cell_of(&m, 2.0, 0.0).1), Class::Traversable);
+    assert_eq!(
+        m.class(cell_of(&m, 2.0, 0.0).0, cell_of(&m, 2.0, 0.0).1),
+        Class::Traversable
+    );
 }
 
 /// 5 cm step at x = 3 m, 10 cm step at x = 6 m (ground 0.15 m beyond).
@@ -93,12 +123,18 @@ fn ten_cm_step_blocks_five_cm_step_does_not() {
             rows10 += 1;
             hit10 += usize::from(c10.iter().any(|c| c.is_obstacle()));
         }
-        false5 += [13, 14, 15, 16].iter().filter(|&&cx| m.class(cx, cy).is_obstacle()).count();
+        false5 += [13, 14, 15, 16]
+            .iter()
+            .filter(|&&cx| m.class(cx, cy).is_obstacle())
+            .count();
     }
     assert!(rows10 >= 25, "10 cm border observed in {rows10} rows");
     // Rows where the riser's points fall evenly on both sides of a cell border are the hard
     // case for mean heights; the top-of-cell rule catches nearly all of them.
-    assert!(hit10 * 100 >= rows10 * 95, "10 cm step blocked in {hit10} of {rows10} rows");
+    assert!(
+        hit10 * 100 >= rows10 * 95,
+        "10 cm step blocked in {hit10} of {rows10} rows"
+    );
     assert_eq!(false5, 0, "5 cm step marked in {false5} cells");
 }
 
@@ -115,9 +151,22 @@ fn slopes_over_23_deg_block_gentler_ones_do_not() {
     let steep = classes_in(&m, 3.3, -2.5, 3.7, -0.6);
     let gentle = classes_in(&m, 3.1, 0.6, 3.9, 2.5);
     let seen = |v: &[Class]| count(v, |c| c != Class::Unknown && c != Class::Undecided);
-    assert!(seen(&steep) > 20 && seen(&gentle) > 20, "{} {}", seen(&steep), seen(&gentle));
-    assert_eq!(count(&steep, Class::is_obstacle), seen(&steep), "30 deg ramp: {steep:?}");
-    assert_eq!(count(&gentle, Class::is_obstacle), 0, "15 deg ramp: {gentle:?}");
+    assert!(
+        seen(&steep) > 20 && seen(&gentle) > 20,
+        "{} {}",
+        seen(&steep),
+        seen(&gentle)
+    );
+    assert_eq!(
+        count(&steep, Class::is_obstacle),
+        seen(&steep),
+        "30 deg ramp: {steep:?}"
+    );
+    assert_eq!(
+        count(&gentle, Class::is_obstacle),
+        0,
+        "15 deg ramp: {gentle:?}"
+    );
 }
 
 fn pole(x: f64, y: f64, _t: f64) -> f64 {
@@ -160,11 +209,18 @@ fn newer_evidence_clears_cells_a_walker_left() {
     let mut m = Mapper::new(Config::default()).unwrap();
     drive(&mut m, &walker, &line((-1.0, -1.0), (-0.6, -1.0), 0.0, 1.9));
     let during = classes_in(&m, 2.8, -0.2, 3.2, 0.2);
-    assert!(count(&during, Class::is_obstacle) > 0, "walker not seen: {during:?}");
+    assert!(
+        count(&during, Class::is_obstacle) > 0,
+        "walker not seen: {during:?}"
+    );
     drive(&mut m, &walker, &line((-0.5, -1.0), (1.0, 1.0), 2.0, 6.0));
     let after = classes_in(&m, 2.6, -0.4, 3.4, 0.4);
     assert!(count(&after, |c| c == Class::Traversable) > 5, "{after:?}");
-    assert_eq!(count(&after, Class::is_obstacle), 0, "walker left marks: {after:?}");
+    assert_eq!(
+        count(&after, Class::is_obstacle),
+        0,
+        "walker left marks: {after:?}"
+    );
 }
 
 #[test]
@@ -183,7 +239,11 @@ fn platform_edge_is_a_negative_obstacle() {
     assert_eq!(count(&top, Class::is_obstacle), 0, "{top:?}");
     // And flat ground with ring gaps gives none.
     let mut f = Mapper::new(Config::default()).unwrap();
-    drive(&mut f, &|_, _, _| 0.0, &line((0.0, 0.0), (1.5, 0.0), 0.0, 3.0));
+    drive(
+        &mut f,
+        &|_, _, _| 0.0,
+        &line((0.0, 0.0), (1.5, 0.0), 0.0, 3.0),
+    );
     let v = classes_in(&f, -8.0, -8.0, 8.0, 8.0);
     assert_eq!(count(&v, |c| c == Class::NegativeObstacle), 0);
 }
@@ -220,27 +280,51 @@ fn tile_versions_are_monotonic_and_tiles_round_trip() {
     for r in &reps {
         for t in &r.tiles {
             let prev = last.insert(t.index, t.version).unwrap_or(0);
-            assert!(t.version > prev, "tile {:?}: {} after {}", t.index, t.version, prev);
+            assert!(
+                t.version > prev,
+                "tile {:?}: {} after {}",
+                t.index,
+                t.version,
+                prev
+            );
             assert_eq!(decode_tile(&encode_tile(t)).unwrap(), *t);
             n += 1;
         }
     }
     assert!(n > 4);
     // At most one publication per tile per 0.5 s (plus the first).
-    let per_tile = reps.iter().flat_map(|r| r.tiles.iter().map(|t| t.index)).filter(|i| *i == TileIndex { tx: 0, ty: 0 }).count();
+    let per_tile = reps
+        .iter()
+        .flat_map(|r| r.tiles.iter().map(|t| t.index))
+        .filter(|i| *i == TileIndex { tx: 0, ty: 0 })
+        .count();
     assert!(per_tile <= 6 * 2 + 1, "{per_tile}");
 }
 
 #[test]
 fn bad_input_is_a_typed_error() {
     let mut m = Mapper::new(Config::default()).unwrap();
-    let bad = RobotPose { x_m: f64::NAN, ..Default::default() };
+    let bad = RobotPose {
+        x_m: f64::NAN,
+        ..Default::default()
+    };
     assert!(m.update_points(vec![], &bad, 0.0, Evidence::Scan).is_err());
     let ok = RobotPose::default();
-    let r = m.update_points(vec![[f32::NAN, 0.0, 0.0], [1.0, 1.0, 0.0]], &ok, 1.0, Evidence::Scan).unwrap();
+    let r = m
+        .update_points(
+            vec![[f32::NAN, 0.0, 0.0], [1.0, 1.0, 0.0]],
+            &ok,
+            1.0,
+            Evidence::Scan,
+        )
+        .unwrap();
     assert_eq!(r.dropped_non_finite, 1);
     assert!(m.update_points(vec![], &ok, 0.5, Evidence::Scan).is_err());
-    assert!(Mapper::new(Config { grid_size_m: -1.0, ..Config::default() }).is_err());
+    assert!(Mapper::new(Config {
+        grid_size_m: -1.0,
+        ..Config::default()
+    })
+    .is_err());
 }
 
 #[test]
@@ -252,7 +336,13 @@ fn debug_steps() {
         let mut s = String::new();
         for cx in 17..=22 {
             let nb = m.debug_stats(cx, cy);
-            s += &format!("{:?}/{}/{:.3}/{:.4} ", m.class(cx, cy), nb.n, nb.mean_m, nb.var_m2);
+            s += &format!(
+                "{:?}/{}/{:.3}/{:.4} ",
+                m.class(cx, cy),
+                nb.n,
+                nb.mean_m,
+                nb.var_m2
+            );
         }
         println!("{cy}: {s}");
     }

@@ -107,17 +107,21 @@ impl PartialOrd for Open {
 /// How often (in expansions) the cancel check is polled.
 const CANCEL_POLL: usize = 1024;
 
+/// Per-cell search state, one cache line access per neighbour.
+#[derive(Clone, Copy, Debug, Default)]
+struct Node {
+    /// Cost from the start, valid when `stamp` is this search's open or closed tag.
+    g_m: f64,
+    /// Predecessor (padded index), valid with `g_m`.
+    parent: u32,
+    /// `generation << 1` once reached, `| 1` once expanded; older values mean "untouched".
+    stamp: u32,
+}
+
 /// An A* planner that keeps its buffers between searches.
 #[derive(Debug, Default)]
 pub struct Planner {
-    /// Cost from the start, valid where `seen == generation`.
-    g_m: Vec<f64>,
-    /// Predecessor (padded index), valid where `seen == generation`.
-    parent: Vec<u32>,
-    /// Generation in which the cell was first reached.
-    seen: Vec<u32>,
-    /// Generation in which the cell was expanded.
-    closed: Vec<u32>,
+    nodes: Vec<Node>,
     generation: u32,
     heap: BinaryHeap<Open>,
 }
@@ -167,110 +171,112 @@ impl Planner {
             return Err(PlanError::GoalBlocked(goal));
         }
         self.prepare(grid.padded_len());
-        let gen = self.generation;
+        let open_tag = self.generation << 1;
+        let closed_tag = open_tag | 1;
 
         let s = grid.cell_size_m();
         let diag = s * std::f64::consts::SQRT_2;
-        let stride = grid.stride() as isize;
-        // Neighbour offsets and step lengths; orthogonal first, then the diagonals with the two
-        // orthogonal offsets each needs free.
-        let ortho: [isize; 4] = [1, -1, stride, -stride];
-        let diagonals: [(isize, isize, isize); 4] = [
-            (stride + 1, 1, stride),
-            (stride - 1, -1, stride),
-            (-stride + 1, 1, -stride),
-            (-stride - 1, -1, -stride),
+        let stride = grid.stride();
+        let st = stride as isize;
+        // Orthogonal moves: (offset, dx, dy). Diagonals also carry the two orthogonal offsets
+        // whose cells must be enterable.
+        let ortho: [(isize, i64, i64); 4] = [(1, 1, 0), (-1, -1, 0), (st, 0, 1), (-st, 0, -1)];
+        let diagonals: [(isize, i64, i64, isize, isize); 4] = [
+            (st + 1, 1, 1, 1, st),
+            (st - 1, -1, 1, -1, st),
+            (-st + 1, 1, -1, 1, -st),
+            (-st - 1, -1, -1, -1, -st),
         ];
-        let (gx, gy) = (i64::from(goal.x), i64::from(goal.y));
-        let ustride = grid.stride();
-        let heuristic = |i: usize| -> f64 {
-            let (x, y) = ((i % ustride) as i64 - 1, (i / ustride) as i64 - 1);
+        // Padded coordinates throughout: differences are what matter.
+        let (gx, gy) = (i64::from(goal.x) + 1, i64::from(goal.y) + 1);
+        let heuristic = |x: i64, y: i64| -> f64 {
             let dx = (x - gx).unsigned_abs() as f64;
             let dy = (y - gy).unsigned_abs() as f64;
             s * (dx + dy + (std::f64::consts::SQRT_2 - 2.0) * dx.min(dy))
         };
 
-        self.g_m[si] = 0.0;
-        self.parent[si] = si as u32;
-        self.seen[si] = gen;
-        let h0 = heuristic(si);
+        self.nodes[si] = Node {
+            g_m: 0.0,
+            parent: si as u32,
+            stamp: open_tag,
+        };
         self.heap.push(Open {
-            f_bits: h0.to_bits(),
+            f_bits: heuristic(i64::from(start.x) + 1, i64::from(start.y) + 1).to_bits(),
             g_bits: 0f64.to_bits(),
             idx: si as u32,
         });
         let max_expansions = limits.max_expansions.unwrap_or(usize::MAX);
         let mut expansions = 0usize;
 
+        // Offers neighbour `n` at (nx, ny) the cost `g_new` via `from`. Blocked cells cost
+        // infinity and never win.
+        macro_rules! relax {
+            ($n:expr, $nx:expr, $ny:expr, $from:expr, $g_new:expr) => {{
+                let (n, g_new) = ($n, $g_new);
+                let node = &mut self.nodes[n];
+                let fresh = node.stamp != open_tag && node.stamp != closed_tag;
+                if g_new != f64::INFINITY && (fresh || (node.stamp == open_tag && g_new < node.g_m))
+                {
+                    *node = Node {
+                        g_m: g_new,
+                        parent: $from as u32,
+                        stamp: open_tag,
+                    };
+                    self.heap.push(Open {
+                        f_bits: (g_new + heuristic($nx, $ny)).to_bits(),
+                        g_bits: g_new.to_bits(),
+                        idx: n as u32,
+                    });
+                }
+            }};
+        }
+
         while let Some(Open { idx, g_bits, .. }) = self.heap.pop() {
             let i = idx as usize;
-            if self.closed[i] == gen || f64::from_bits(g_bits) > self.g_m[i] {
+            let node = self.nodes[i];
+            if node.stamp == closed_tag || f64::from_bits(g_bits) > node.g_m {
                 continue; // stale entry: the cell was reached more cheaply later
             }
             if i == gi {
                 return Ok(self.trace(grid, si, gi, expansions));
             }
-            self.closed[i] = gen;
+            self.nodes[i].stamp = closed_tag;
             expansions += 1;
             if expansions > max_expansions {
                 return Err(PlanError::BudgetExceeded { max_expansions });
             }
-            if expansions % CANCEL_POLL == 0 && cancel() {
+            if expansions.is_multiple_of(CANCEL_POLL) && cancel() {
                 return Err(PlanError::Cancelled { expansions });
             }
-            let g_i = self.g_m[i];
+            let g_i = node.g_m;
+            let (x, y) = ((i % stride) as i64, (i / stride) as i64);
             let ii = i as isize;
-            for &o in &ortho {
+            for &(o, dx, dy) in &ortho {
                 let n = (ii + o) as usize;
-                self.relax(n, i, g_i + s + f64::from(pen[n]), &heuristic);
+                relax!(n, x + dx, y + dy, i, g_i + s + f64::from(pen[n]));
             }
-            for &(o, a, b) in &diagonals {
-                let n = (ii + o) as usize;
+            for &(o, dx, dy, a, b) in &diagonals {
                 // No corner cutting: both cells beside the diagonal must be enterable.
                 if pen[(ii + a) as usize] == BLOCKED || pen[(ii + b) as usize] == BLOCKED {
                     continue;
                 }
-                self.relax(n, i, g_i + diag + f64::from(pen[n]), &heuristic);
+                let n = (ii + o) as usize;
+                relax!(n, x + dx, y + dy, i, g_i + diag + f64::from(pen[n]));
             }
         }
         Err(PlanError::NoPath { expansions })
     }
 
-    /// Offers cell `n` the cost `g_new` via `from`. Blocked cells cost infinity and never win.
-    #[inline(always)]
-    fn relax(&mut self, n: usize, from: usize, g_new: f64, heuristic: &impl Fn(usize) -> f64) {
-        let gen = self.generation;
-        if g_new == f64::INFINITY || self.closed[n] == gen {
-            return;
-        }
-        if self.seen[n] == gen && self.g_m[n] <= g_new {
-            return;
-        }
-        self.seen[n] = gen;
-        self.g_m[n] = g_new;
-        self.parent[n] = from as u32;
-        let f = g_new + heuristic(n);
-        self.heap.push(Open {
-            f_bits: f.to_bits(),
-            g_bits: g_new.to_bits(),
-            idx: n as u32,
-        });
-    }
-
     /// Grows the buffers to `n` cells and starts a new generation.
     fn prepare(&mut self, n: usize) {
-        if self.g_m.len() < n {
-            self.g_m.resize(n, 0.0);
-            self.parent.resize(n, 0);
-            self.seen.resize(n, 0);
-            self.closed.resize(n, 0);
+        if self.nodes.len() < n {
+            self.nodes.resize(n, Node::default());
         }
         self.heap.clear();
-        self.generation = self.generation.wrapping_add(1);
-        if self.generation == 0 {
-            // After 2^32 searches the stamps could alias: start from a clean slate once.
-            self.seen.iter_mut().for_each(|v| *v = 0);
-            self.closed.iter_mut().for_each(|v| *v = 0);
+        self.generation += 1;
+        if self.generation >= 1 << 31 {
+            // Tags are `generation << 1`: after 2^31 searches start from a clean slate once.
+            self.nodes.iter_mut().for_each(|v| v.stamp = 0);
             self.generation = 1;
         }
     }
@@ -283,7 +289,7 @@ impl Planner {
             if i == si {
                 break;
             }
-            i = self.parent[i] as usize;
+            i = self.nodes[i].parent as usize;
         }
         cells.reverse();
         let s = grid.cell_size_m();
@@ -299,7 +305,7 @@ impl Planner {
             .sum();
         GridPath {
             cells,
-            cost_m: self.g_m[gi],
+            cost_m: self.nodes[gi].g_m,
             length_m,
             expansions,
         }

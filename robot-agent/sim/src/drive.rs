@@ -128,7 +128,10 @@ mod tests {
             }
         }
         assert!(d.is_done());
-        assert!((pose.x_m - 10.0).abs() < 0.4 && (pose.y_m - 8.0).abs() < 0.4, "{pose:?}");
+        assert!(
+            (pose.x_m - 10.0).abs() < 0.4 && (pose.y_m - 8.0).abs() < 0.4,
+            "{pose:?}"
+        );
         assert!(max_dev < 0.15, "{max_dev}");
     }
 }

@@ -161,7 +161,9 @@ impl World {
                     c.reasons = REASON_OUTSIDE;
                     continue;
                 }
-                let (Some((i0, i1)), Some((j0, j1))) = (span(x0, x1, gx0, nx), span(y0, y1, gy0, ny)) else {
+                let (Some((i0, i1)), Some((j0, j1))) =
+                    (span(x0, x1, gx0, nx), span(y0, y1, gy0, ny))
+                else {
                     c.state = CellState::Unknown;
                     c.reasons = REASON_OUTSIDE;
                     continue;
@@ -192,7 +194,13 @@ impl World {
                 }
                 c.step_m = step as f32;
                 c.height_m = (sum / n.max(1) as f64) as f32;
-                c.slope_deg = slope_deg(self, x0 - params.slope_margin_m, y0 - params.slope_margin_m, x1 + params.slope_margin_m, y1 + params.slope_margin_m) as f32;
+                c.slope_deg = slope_deg(
+                    self,
+                    x0 - params.slope_margin_m,
+                    y0 - params.slope_margin_m,
+                    x1 + params.slope_margin_m,
+                    y1 + params.slope_margin_m,
+                ) as f32;
                 if step >= params.max_step_m - params.step_tolerance_m {
                     c.reasons |= REASON_STEP;
                 }
@@ -226,7 +234,9 @@ impl World {
                         continue;
                     }
                     let (lo, hi) = ground_minmax(self, &sq);
-                    if solid.z0_m <= hi + params.robot_height_m + params.clearance_m && solid.z1_m >= lo - 0.05 {
+                    if solid.z0_m <= hi + params.robot_height_m + params.clearance_m
+                        && solid.z1_m >= lo - 0.05
+                    {
                         cells[k].reasons |= REASON_OBSTACLE;
                     }
                 }
@@ -234,7 +244,11 @@ impl World {
         }
         for c in &mut cells {
             if c.reasons & REASON_OUTSIDE == 0 {
-                c.state = if c.reasons != 0 { CellState::Obstacle } else { CellState::Traversable };
+                c.state = if c.reasons != 0 {
+                    CellState::Obstacle
+                } else {
+                    CellState::Traversable
+                };
             }
         }
         TruthGrid {

@@ -28,7 +28,7 @@ pub mod world;
 pub use labels::{LabelParams, TruthCell, TruthGrid};
 pub use plant::{Collision, CollisionKind};
 pub use robot::RobotProfile;
+pub use scenario::{Scenario, ScenarioError};
 pub use sensors::{DepthConfig, GnssConfig, GnssFix, LidarConfig, OdomConfig};
 pub use simulation::{SimConfig, Simulation, StepOutput};
-pub use scenario::{Scenario, ScenarioError};
 pub use world::{Hit, HitKind, Obstacle, WalkerState, World};

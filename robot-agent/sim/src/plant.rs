@@ -160,8 +160,16 @@ impl Plant {
         cmd_omega_rps: f64,
     ) -> Vec<Collision> {
         let pr = &self.profile;
-        let cmd_v = if cmd_v_mps.is_finite() { cmd_v_mps } else { 0.0 };
-        let cmd_w = if cmd_omega_rps.is_finite() { cmd_omega_rps } else { 0.0 };
+        let cmd_v = if cmd_v_mps.is_finite() {
+            cmd_v_mps
+        } else {
+            0.0
+        };
+        let cmd_w = if cmd_omega_rps.is_finite() {
+            cmd_omega_rps
+        } else {
+            0.0
+        };
         let mut v_t = cmd_v.clamp(-pr.max_speed_mps, pr.max_speed_mps);
         let mut w_t = cmd_w.clamp(-pr.max_omega_rps, pr.max_omega_rps);
         // Wheel-speed saturation keeps the turning radius: scale both together.
@@ -176,7 +184,9 @@ impl Plant {
         let dw = (w_t - self.omega_rps).clamp(-pr.max_alpha_rps2 * dt_s, pr.max_alpha_rps2 * dt_s);
         let v = self.v_mps + dv;
         let w = self.omega_rps + dw;
-        let cand = self.pose.integrate(0.5 * (self.v_mps + v), 0.5 * (self.omega_rps + w), dt_s);
+        let cand = self
+            .pose
+            .integrate(0.5 * (self.v_mps + v), 0.5 * (self.omega_rps + w), dt_s);
 
         let mut hits: Vec<(CollisionKind, usize, f64)> = Vec::new();
         let moving = v.abs() > 1e-9 || w.abs() > 1e-9;
@@ -204,7 +214,10 @@ impl Plant {
                 if (bx - cand.x_m).hypot(by - cand.y_m) > br + 0.7 {
                     continue;
                 }
-                if s.z0_m <= hi + pr.height_m + pr.clearance_m && s.z1_m >= lo - 0.05 && s.overlaps(&fp) {
+                if s.z0_m <= hi + pr.height_m + pr.clearance_m
+                    && s.z1_m >= lo - 0.05
+                    && s.overlaps(&fp)
+                {
                     hits.push((CollisionKind::Obstacle, i, 0.0));
                 }
             }
@@ -218,10 +231,19 @@ impl Plant {
                     let lx = dir * fp.hx;
                     let (x0, y0) = cand.transform_point(lx, ly);
                     let (x1, y1) = cand.transform_point(lx + dir * 0.1, ly);
-                    if let (Some(h0), Some(h1)) = (world.ground_height(x0, y0), world.ground_height(x1, y1)) {
+                    if let (Some(h0), Some(h1)) =
+                        (world.ground_height(x0, y0), world.ground_height(x1, y1))
+                    {
                         let j = h1 - h0;
                         if j.abs() >= thr && j.abs() > worst.0 {
-                            worst = (j.abs(), Some(if j > 0.0 { CollisionKind::Step } else { CollisionKind::DropOff }));
+                            worst = (
+                                j.abs(),
+                                Some(if j > 0.0 {
+                                    CollisionKind::Step
+                                } else {
+                                    CollisionKind::DropOff
+                                }),
+                            );
                         }
                     }
                 }
@@ -258,11 +280,12 @@ impl Plant {
         let mut still: Vec<Contact> = Vec::new();
         for c in &self.active {
             let persists = hits.iter().any(|h| h.0 == c.kind && h.1 == c.object);
-            let near = c.kind != CollisionKind::Walker && (c.x_m - x_now).hypot(c.y_m - y_now) < 0.15;
+            let near =
+                c.kind != CollisionKind::Walker && (c.x_m - x_now).hypot(c.y_m - y_now) < 0.15;
             let walker_near = c.kind == CollisionKind::Walker
-                && walkers
-                    .iter()
-                    .any(|w| w.id == c.object && fp_now.distance_to(w.x_m, w.y_m) <= w.radius_m + 0.1);
+                && walkers.iter().any(|w| {
+                    w.id == c.object && fp_now.distance_to(w.x_m, w.y_m) <= w.radius_m + 0.1
+                });
             if persists || near || walker_near {
                 still.push(*c);
             }
@@ -271,7 +294,12 @@ impl Plant {
             if still.iter().any(|c| c.kind == kind && c.object == object) {
                 continue;
             }
-            still.push(Contact { kind, object, x_m: x_now, y_m: y_now });
+            still.push(Contact {
+                kind,
+                object,
+                x_m: x_now,
+                y_m: y_now,
+            });
             events.push(Collision {
                 t_s: t_end_s,
                 kind,
@@ -345,7 +373,9 @@ undulation_amplitude_m = 0.0
             let (v, om) = (p.v_mps(), p.omega_rps());
             assert!(v.abs() <= prof.max_speed_mps + 1e-9);
             assert!(om.abs() <= prof.max_omega_rps + 1e-9);
-            assert!(v.abs() + om.abs() * 0.5 * prof.track_width_m <= prof.max_wheel_speed_mps + 1e-9);
+            assert!(
+                v.abs() + om.abs() * 0.5 * prof.track_width_m <= prof.max_wheel_speed_mps + 1e-9
+            );
             assert!((v - prev_v).abs() <= prof.max_accel_mps2 * dt + 1e-9);
             assert!((om - prev_w).abs() <= prof.max_alpha_rps2 * dt + 1e-9);
             prev_v = v;
@@ -399,7 +429,10 @@ undulation_amplitude_m = 0.0
         for k in 0..400 {
             ev.extend(p.step(&w, &[], k as f64 * 0.02, 0.02, 0.5, 0.0));
         }
-        assert!(ev.iter().any(|e| e.kind == CollisionKind::DropOff), "{ev:?}");
+        assert!(
+            ev.iter().any(|e| e.kind == CollisionKind::DropOff),
+            "{ev:?}"
+        );
         assert!(p.pose2().x_m < -5.0);
         assert!((p.pose3().translation.vector.z - 0.8).abs() < 0.01);
     }

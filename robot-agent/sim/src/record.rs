@@ -56,15 +56,27 @@ impl Recorder {
     /// Records one step's output (call right after `sim.step`).
     pub fn write_step(&mut self, sim: &Simulation, out: &StepOutput) -> std::io::Result<()> {
         if let Some(scan) = &out.scan {
-            let base = sim.truth_pose_at(scan.stamp_s).unwrap_or_else(|| sim.truth_pose());
+            let base = sim
+                .truth_pose_at(scan.stamp_s)
+                .unwrap_or_else(|| sim.truth_pose());
             let lidar: Isometry3<f64> = base * sim.lidar_extrinsic();
-            sensing::pcd::write_pcd(self.dir.join("clouds").join(format!("{:03}.pcd", self.scans)), &scan.points)?;
+            sensing::pcd::write_pcd(
+                self.dir
+                    .join("clouds")
+                    .join(format!("{:03}.pcd", self.scans)),
+                &scan.points,
+            )?;
             writeln!(self.poses, "{}", sensing::sequence::format_pose(&lidar))?;
             writeln!(self.stamps, "{:.6}", scan.stamp_s)?;
             self.scans += 1;
         }
         if let (true, Some(d)) = (self.record_depth, &out.depth) {
-            sensing::pcd::write_pcd(self.dir.join("depth").join(format!("{:03}.pcd", self.depth_frames)), &d.points)?;
+            sensing::pcd::write_pcd(
+                self.dir
+                    .join("depth")
+                    .join(format!("{:03}.pcd", self.depth_frames)),
+                &d.points,
+            )?;
             self.depth_frames += 1;
         }
         if let Some(o) = &out.odom {

@@ -39,7 +39,12 @@ pub enum RenderError {
 }
 
 /// Renders the world of `scenario` as PNG bytes.
-pub fn render_png(scenario: &Scenario, world: &World, labels: &LabelParams, opt: &RenderOptions) -> Result<Vec<u8>, RenderError> {
+pub fn render_png(
+    scenario: &Scenario,
+    world: &World,
+    labels: &LabelParams,
+    opt: &RenderOptions,
+) -> Result<Vec<u8>, RenderError> {
     let e = &scenario.extent;
     let s = opt.m_per_px;
     let w = ((e.x_max_m - e.x_min_m) / s).floor() as usize;
@@ -54,7 +59,14 @@ pub fn render_png(scenario: &Scenario, world: &World, labels: &LabelParams, opt:
     let truth: Option<TruthGrid> = opt.labels.then(|| {
         let (cx0, cy0) = lattice.cell_of(e.x_min_m, e.y_min_m);
         let (cx1, cy1) = lattice.cell_of(e.x_max_m, e.y_max_m);
-        world.truth_labels(&lattice, cx0, cy0, (cx1 - cx0 + 1) as usize, (cy1 - cy0 + 1) as usize, labels)
+        world.truth_labels(
+            &lattice,
+            cx0,
+            cy0,
+            (cx1 - cx0 + 1) as usize,
+            (cy1 - cy0 + 1) as usize,
+            labels,
+        )
     });
     let (mut hmin, mut hmax) = (f64::INFINITY, f64::NEG_INFINITY);
     let (_, _, nx, ny) = world.ground.grid();
@@ -72,11 +84,15 @@ pub fn render_png(scenario: &Scenario, world: &World, labels: &LabelParams, opt:
         for px in 0..w {
             let x = e.x_min_m + (px as f64 + 0.5) * s;
             let z = world.ground_height(x, y).unwrap_or(hmin);
-            let zx = world.ground_height(x + s, y).unwrap_or(z) - world.ground_height(x - s, y).unwrap_or(z);
-            let zy = world.ground_height(x, y + s).unwrap_or(z) - world.ground_height(x, y - s).unwrap_or(z);
+            let zx = world.ground_height(x + s, y).unwrap_or(z)
+                - world.ground_height(x - s, y).unwrap_or(z);
+            let zy = world.ground_height(x, y + s).unwrap_or(z)
+                - world.ground_height(x, y - s).unwrap_or(z);
             // Light from the north-west, 45 deg up.
             let n = nalgebra::Vector3::new(-zx / (2.0 * s), -zy / (2.0 * s), 1.0).normalize();
-            let shade = n.dot(&nalgebra::Vector3::new(-0.5, 0.5, 0.707).normalize()).clamp(0.0, 1.0);
+            let shade = n
+                .dot(&nalgebra::Vector3::new(-0.5, 0.5, 0.707).normalize())
+                .clamp(0.0, 1.0);
             let base = 60.0 + 140.0 * (z - hmin) / span;
             let g = (base * (0.55 + 0.6 * shade)).clamp(0.0, 255.0);
             let mut c = [g, g, g];
@@ -119,7 +135,12 @@ pub fn render_png(scenario: &Scenario, world: &World, labels: &LabelParams, opt:
             let n = (l / (0.5 * s)).ceil().max(1.0) as usize;
             for k in 0..=n {
                 let f = k as f64 / n as f64;
-                dot(seg[0][0] + f * (seg[1][0] - seg[0][0]), seg[0][1] + f * (seg[1][1] - seg[0][1]), col, 0);
+                dot(
+                    seg[0][0] + f * (seg[1][0] - seg[0][0]),
+                    seg[0][1] + f * (seg[1][1] - seg[0][1]),
+                    col,
+                    0,
+                );
             }
         }
     };
@@ -131,7 +152,12 @@ pub fn render_png(scenario: &Scenario, world: &World, labels: &LabelParams, opt:
     }
     for st in &scenario.start {
         dot(st.x_m, st.y_m, [250, 250, 250], 4);
-        dot(st.x_m + 0.8 * st.yaw_deg.to_radians().cos(), st.y_m + 0.8 * st.yaw_deg.to_radians().sin(), [250, 250, 250], 2);
+        dot(
+            st.x_m + 0.8 * st.yaw_deg.to_radians().cos(),
+            st.y_m + 0.8 * st.yaw_deg.to_radians().sin(),
+            [250, 250, 250],
+            2,
+        );
     }
     let mut bytes = Vec::new();
     {

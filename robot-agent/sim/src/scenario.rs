@@ -546,14 +546,21 @@ impl Scenario {
         let w = e.x_max_m - e.x_min_m;
         let h = e.y_max_m - e.y_min_m;
         if !(finite_pos(w) && finite_pos(h)) {
-            return Err(bad("extent".into(), "x_max_m/y_max_m must exceed x_min_m/y_min_m"));
+            return Err(bad(
+                "extent".into(),
+                "x_max_m/y_max_m must exceed x_min_m/y_min_m",
+            ));
         }
         if w > 1000.0 || h > 1000.0 {
             return Err(bad("extent".into(), "at most 1000 m per side"));
         }
         let t = &self.terrain;
-        if !(finite_pos(t.resolution_m) && t.resolution_m <= 0.05 + 1e-9 && t.resolution_m >= 0.01) {
-            return Err(bad("terrain.resolution_m".into(), "must be within 0.01..=0.05"));
+        if !(finite_pos(t.resolution_m) && t.resolution_m <= 0.05 + 1e-9 && t.resolution_m >= 0.01)
+        {
+            return Err(bad(
+                "terrain.resolution_m".into(),
+                "must be within 0.01..=0.05",
+            ));
         }
         if !(t.undulation_amplitude_m.is_finite() && t.undulation_amplitude_m >= 0.0) {
             return Err(bad("terrain.undulation_amplitude_m".into(), "must be >= 0"));
@@ -562,16 +569,24 @@ impl Scenario {
             return Err(bad("terrain.undulation_wavelength_m".into(), "must be > 0"));
         }
         if !(t.grass_amplitude_m.is_finite() && (0.0..=0.3).contains(&t.grass_amplitude_m)) {
-            return Err(bad("terrain.grass_amplitude_m".into(), "must be within 0..0.3"));
+            return Err(bad(
+                "terrain.grass_amplitude_m".into(),
+                "must be within 0..0.3",
+            ));
         }
         let pts_ok = |pts: &[[f64; 2]]| pts.iter().all(|p| p[0].is_finite() && p[1].is_finite());
         let rect_ok = |r: &Rect| {
-            r.center_m.iter().all(|v| v.is_finite()) && r.size_m.iter().all(|&v| finite_pos(v)) && r.yaw_deg.is_finite()
+            r.center_m.iter().all(|v| v.is_finite())
+                && r.size_m.iter().all(|&v| finite_pos(v))
+                && r.yaw_deg.is_finite()
         };
         for (name, r) in [("drive", &self.drive), ("teach", &self.teach)] {
             if let Some(r) = r {
                 if r.points.len() < 2 || !pts_ok(&r.points) {
-                    return Err(bad(format!("{name}.points"), "needs at least 2 finite points"));
+                    return Err(bad(
+                        format!("{name}.points"),
+                        "needs at least 2 finite points",
+                    ));
                 }
                 if !finite_pos(r.speed_mps) {
                     return Err(bad(format!("{name}.speed_mps"), "must be > 0"));
@@ -585,14 +600,22 @@ impl Scenario {
         }
         for (i, p) in self.path.iter().enumerate() {
             if p.points.len() < 2 || !pts_ok(&p.points) || !finite_pos(p.width_m) {
-                return Err(bad(format!("path[{i}]"), "needs >= 2 finite points and width_m > 0"));
+                return Err(bad(
+                    format!("path[{i}]"),
+                    "needs >= 2 finite points and width_m > 0",
+                ));
             }
         }
         for (i, s) in self.step.iter().enumerate() {
             match (&s.rect, &s.points) {
                 (Some(r), None) if rect_ok(r) => {}
                 (None, Some(p)) if p.len() >= 2 && pts_ok(p) && finite_pos(s.width_m) => {}
-                _ => return Err(bad(format!("step[{i}]"), "needs exactly one of `rect` or `points` (>= 2 points)")),
+                _ => {
+                    return Err(bad(
+                        format!("step[{i}]"),
+                        "needs exactly one of `rect` or `points` (>= 2 points)",
+                    ))
+                }
             }
             if !(s.height_m.is_finite() && s.height_m.abs() <= 5.0) {
                 return Err(bad(format!("step[{i}].height_m"), "must be within -5..5"));
@@ -603,45 +626,75 @@ impl Scenario {
                 return Err(bad(format!("platform[{i}].rect"), "bad rectangle"));
             }
             if !(p.height_m.is_finite() && (0.0..=10.0).contains(&p.height_m)) {
-                return Err(bad(format!("platform[{i}].height_m"), "must be within 0..10"));
+                return Err(bad(
+                    format!("platform[{i}].height_m"),
+                    "must be within 0..10",
+                ));
             }
         }
         for (i, s) in self.stairs.iter().enumerate() {
-            let ok = [s.x_m, s.y_m, s.yaw_deg, s.landing_m].iter().all(|v| v.is_finite())
+            let ok = [s.x_m, s.y_m, s.yaw_deg, s.landing_m]
+                .iter()
+                .all(|v| v.is_finite())
                 && finite_pos(s.width_m)
                 && finite_pos(s.step_height_m)
                 && finite_pos(s.step_depth_m)
                 && (1..=100).contains(&s.steps)
                 && s.landing_m >= 0.0;
             if !ok {
-                return Err(bad(format!("stairs[{i}]"), "needs finite positions, positive sizes, 1..=100 steps"));
+                return Err(bad(
+                    format!("stairs[{i}]"),
+                    "needs finite positions, positive sizes, 1..=100 steps",
+                ));
             }
         }
         for (i, r) in self.ramp.iter().enumerate() {
             if !(r.slope_deg.is_finite() && r.slope_deg > 0.0 && r.slope_deg < 80.0) {
                 return Err(bad(format!("ramp[{i}].slope_deg"), "must be within 0..80"));
             }
-            let ok = [r.x_m, r.y_m, r.yaw_deg, r.landing_m].iter().all(|v| v.is_finite())
+            let ok = [r.x_m, r.y_m, r.yaw_deg, r.landing_m]
+                .iter()
+                .all(|v| v.is_finite())
                 && finite_pos(r.width_m)
                 && finite_pos(r.length_m)
                 && r.landing_m >= 0.0;
             if !ok {
-                return Err(bad(format!("ramp[{i}]"), "needs finite positions and positive sizes"));
+                return Err(bad(
+                    format!("ramp[{i}]"),
+                    "needs finite positions and positive sizes",
+                ));
             }
         }
         for (i, hl) in self.hole.iter().enumerate() {
             if !rect_ok(&hl.rect) || !finite_pos(hl.depth_m) {
-                return Err(bad(format!("hole[{i}]"), "needs a rectangle and depth_m > 0"));
+                return Err(bad(
+                    format!("hole[{i}]"),
+                    "needs a rectangle and depth_m > 0",
+                ));
             }
         }
         for (i, wl) in self.wall.iter().enumerate() {
-            if wl.points.len() < 2 || !pts_ok(&wl.points) || !finite_pos(wl.thickness_m) || !finite_pos(wl.height_m) {
-                return Err(bad(format!("wall[{i}]"), "needs >= 2 finite points, thickness_m > 0, height_m > 0"));
+            if wl.points.len() < 2
+                || !pts_ok(&wl.points)
+                || !finite_pos(wl.thickness_m)
+                || !finite_pos(wl.height_m)
+            {
+                return Err(bad(
+                    format!("wall[{i}]"),
+                    "needs >= 2 finite points, thickness_m > 0, height_m > 0",
+                ));
             }
         }
         for (i, p) in self.pole.iter().enumerate() {
-            if !(p.x_m.is_finite() && p.y_m.is_finite() && finite_pos(p.radius_m) && finite_pos(p.height_m)) {
-                return Err(bad(format!("pole[{i}]"), "needs finite position, radius_m > 0, height_m > 0"));
+            if !(p.x_m.is_finite()
+                && p.y_m.is_finite()
+                && finite_pos(p.radius_m)
+                && finite_pos(p.height_m))
+            {
+                return Err(bad(
+                    format!("pole[{i}]"),
+                    "needs finite position, radius_m > 0, height_m > 0",
+                ));
             }
         }
         for (i, t) in self.tree.iter().enumerate() {
@@ -652,12 +705,18 @@ impl Scenario {
                 && finite_pos(t.canopy_radius_m)
                 && finite_pos(t.canopy_height_m);
             if !ok {
-                return Err(bad(format!("tree[{i}]"), "needs finite position and positive sizes"));
+                return Err(bad(
+                    format!("tree[{i}]"),
+                    "needs finite position and positive sizes",
+                ));
             }
         }
         for (i, b) in self.boxes.iter().enumerate() {
             if !rect_ok(&b.rect) || !finite_pos(b.height_m) {
-                return Err(bad(format!("box[{i}]"), "needs a rectangle and height_m > 0"));
+                return Err(bad(
+                    format!("box[{i}]"),
+                    "needs a rectangle and height_m > 0",
+                ));
             }
         }
         for (i, c) in self.car.iter().enumerate() {
@@ -669,18 +728,27 @@ impl Scenario {
                 && c.height_m.is_finite()
                 && c.height_m > 1.0;
             if !ok {
-                return Err(bad(format!("car[{i}]"), "needs finite pose, positive sizes, height_m > 1"));
+                return Err(bad(
+                    format!("car[{i}]"),
+                    "needs finite pose, positive sizes, height_m > 1",
+                ));
             }
         }
         for (i, wk) in self.walker.iter().enumerate() {
             if wk.points.len() < 2 || !pts_ok(&wk.points) {
-                return Err(bad(format!("walker[{i}].points"), "needs at least 2 finite points"));
+                return Err(bad(
+                    format!("walker[{i}].points"),
+                    "needs at least 2 finite points",
+                ));
             }
             if !(wk.speed_mps.is_finite() && (0.0..=5.0).contains(&wk.speed_mps)) {
                 return Err(bad(format!("walker[{i}].speed_mps"), "must be within 0..5"));
             }
             if !(wk.phase_m.is_finite() && finite_pos(wk.radius_m) && finite_pos(wk.height_m)) {
-                return Err(bad(format!("walker[{i}]"), "needs finite phase_m, radius_m > 0, height_m > 0"));
+                return Err(bad(
+                    format!("walker[{i}]"),
+                    "needs finite phase_m, radius_m > 0, height_m > 0",
+                ));
             }
         }
         Ok(())
@@ -713,9 +781,12 @@ y_max_m = 10.0
 
     #[test]
     fn unknown_field_is_named() {
-        let e = Scenario::from_toml_str(&format!("{MIN}\n[[pole]]\nx_m = 1.0\ny_m = 2.0\nradiuss_m = 3.0\n"), "x")
-            .unwrap_err()
-            .to_string();
+        let e = Scenario::from_toml_str(
+            &format!("{MIN}\n[[pole]]\nx_m = 1.0\ny_m = 2.0\nradiuss_m = 3.0\n"),
+            "x",
+        )
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("radiuss_m"), "{e}");
     }
 
@@ -728,9 +799,13 @@ y_max_m = 10.0
         .unwrap_err()
         .to_string();
         assert!(e.contains("ramp[0].slope_deg"), "{e}");
-        let e = Scenario::from_toml_str(&MIN.replace("resolution_m", "x").replace("[extent]", "[terrain]\nresolution_m = 0.1\n[extent]"), "x")
-            .unwrap_err()
-            .to_string();
+        let e = Scenario::from_toml_str(
+            &MIN.replace("resolution_m", "x")
+                .replace("[extent]", "[terrain]\nresolution_m = 0.1\n[extent]"),
+            "x",
+        )
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("terrain.resolution_m"), "{e}");
     }
 
@@ -738,7 +813,11 @@ y_max_m = 10.0
     fn all_scenario_files_load() {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/scenarios");
         let mut n = 0;
-        let mut entries: Vec<_> = std::fs::read_dir(&dir).unwrap().filter_map(|e| e.ok()).map(|e| e.path()).collect();
+        let mut entries: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .map(|e| e.path())
+            .collect();
         entries.sort();
         for p in entries {
             if p.extension().is_some_and(|e| e == "toml") {

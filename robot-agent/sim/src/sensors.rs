@@ -201,7 +201,14 @@ impl Buckets {
         }
     }
 
-    fn fill(&mut self, o: &Point3<f64>, solids: &[Solid], walkers: &[Solid], max_range_m: f64, pad_m: f64) {
+    fn fill(
+        &mut self,
+        o: &Point3<f64>,
+        solids: &[Solid],
+        walkers: &[Solid],
+        max_range_m: f64,
+        pad_m: f64,
+    ) {
         for l in &mut self.lists {
             l.clear();
         }
@@ -220,7 +227,12 @@ impl Buckets {
                     continue;
                 }
                 if d <= r {
-                    if is_walker { &mut self.all_walkers } else { &mut self.all }.push(i as u32);
+                    if is_walker {
+                        &mut self.all_walkers
+                    } else {
+                        &mut self.all
+                    }
+                    .push(i as u32);
                     continue;
                 }
                 let a = (cy - o.y).atan2(cx - o.x) + std::f64::consts::PI;
@@ -229,7 +241,12 @@ impl Buckets {
                 let b1 = ((a + half) / bw).floor() as i64 + 1;
                 for b in b0..=b1 {
                     let k = b.rem_euclid(self.n as i64) as usize;
-                    if is_walker { &mut self.walker_lists[k] } else { &mut self.lists[k] }.push(i as u32);
+                    if is_walker {
+                        &mut self.walker_lists[k]
+                    } else {
+                        &mut self.lists[k]
+                    }
+                    .push(i as u32);
                 }
             }
         }
@@ -315,7 +332,8 @@ impl Lidar {
         let o_mid = Point3::from((s0.translation.vector + s1.translation.vector) * 0.5);
         // Pad bounding circles by the sensor's motion in the chunk plus a walker's (1.3 m/s x 20 ms).
         let pad = (s1.translation.vector - s0.translation.vector).norm() + 0.1;
-        self.buckets.fill(&o_mid, world.solids(), walkers, self.cfg.max_range_m, pad);
+        self.buckets
+            .fill(&o_mid, world.solids(), walkers, self.cfg.max_range_m, pad);
         let span = (t1 - t0).max(1e-12);
         loop {
             let tc = self.rev_start_s + self.next_col as f64 * cdt;
@@ -336,9 +354,18 @@ impl Lidar {
                 self.scratch_ids.extend_from_slice(&self.buckets.lists[b]);
                 self.scratch_ids.extend_from_slice(&self.buckets.all);
                 self.scratch_walkers.clear();
-                self.scratch_walkers.extend_from_slice(&self.buckets.walker_lists[b]);
-                self.scratch_walkers.extend_from_slice(&self.buckets.all_walkers);
-                let Some(hit) = world.raycast_candidates(&o, &dm, self.cfg.max_range_m, &self.scratch_ids, walkers, &self.scratch_walkers) else {
+                self.scratch_walkers
+                    .extend_from_slice(&self.buckets.walker_lists[b]);
+                self.scratch_walkers
+                    .extend_from_slice(&self.buckets.all_walkers);
+                let Some(hit) = world.raycast_candidates(
+                    &o,
+                    &dm,
+                    self.cfg.max_range_m,
+                    &self.scratch_ids,
+                    walkers,
+                    &self.scratch_walkers,
+                ) else {
                     continue;
                 };
                 let n: f64 = rng.sample(StandardNormal);
@@ -389,17 +416,28 @@ pub(crate) fn depth_frame(
         let (cx, cy, r) = s.bounds();
         (cx - o.x).hypot(cy - o.y) <= r + cfg.max_range_m
     };
-    let ids: Vec<u32> = (0..world.solids().len() as u32).filter(|&i| near(&world.solids()[i as usize])).collect();
-    let wids: Vec<u32> = (0..walkers.len() as u32).filter(|&i| near(&walkers[i as usize])).collect();
+    let ids: Vec<u32> = (0..world.solids().len() as u32)
+        .filter(|&i| near(&world.solids()[i as usize]))
+        .collect();
+    let wids: Vec<u32> = (0..walkers.len() as u32)
+        .filter(|&i| near(&walkers[i as usize]))
+        .collect();
     let fx = 0.5 * cfg.width_px as f64 / (0.5 * cfg.hfov_deg.to_radians()).tan();
     let fy = 0.5 * cfg.height_px as f64 / (0.5 * cfg.vfov_deg.to_radians()).tan();
     let (cu, cv) = (0.5 * cfg.width_px as f64, 0.5 * cfg.height_px as f64);
     let mut points = Vec::with_capacity(cfg.width_px * cfg.height_px);
     for v in 0..cfg.height_px {
         for u in 0..cfg.width_px {
-            let ds = Vector3::new(1.0, -(u as f64 + 0.5 - cu) / fx, -(v as f64 + 0.5 - cv) / fy).normalize();
+            let ds = Vector3::new(
+                1.0,
+                -(u as f64 + 0.5 - cu) / fx,
+                -(v as f64 + 0.5 - cv) / fy,
+            )
+            .normalize();
             let dm = rot * ds;
-            let Some(hit) = world.raycast_candidates(&o, &dm, cfg.max_range_m, &ids, walkers, &wids) else {
+            let Some(hit) =
+                world.raycast_candidates(&o, &dm, cfg.max_range_m, &ids, walkers, &wids)
+            else {
                 continue;
             };
             let n: f64 = rng.sample(StandardNormal);
@@ -418,7 +456,10 @@ pub(crate) fn depth_frame(
             });
         }
     }
-    sensing::Scan { stamp_s: t_s, points }
+    sensing::Scan {
+        stamp_s: t_s,
+        points,
+    }
 }
 
 /// Wheel odometry: integrates the measured (biased, noisy) speed and turn rate.
@@ -442,7 +483,14 @@ impl Odometry {
     }
 
     /// Integrates one plant step with the true speeds; emits a sample when one is due.
-    pub(crate) fn step(&mut self, t_end_s: f64, dt_s: f64, v_true: f64, w_true: f64, rng: &mut SmallRng) -> Option<OdomSample> {
+    pub(crate) fn step(
+        &mut self,
+        t_end_s: f64,
+        dt_s: f64,
+        v_true: f64,
+        w_true: f64,
+        rng: &mut SmallRng,
+    ) -> Option<OdomSample> {
         let n1: f64 = rng.sample(StandardNormal);
         let n2: f64 = rng.sample(StandardNormal);
         let moving = v_true.abs() > 1e-6 || w_true.abs() > 1e-6;
@@ -450,7 +498,9 @@ impl Odometry {
         let (v, w) = if moving {
             (
                 v_true * (1.0 + self.cfg.scale_error) + n1 * self.cfg.v_noise_mps,
-                w_true * (1.0 + self.cfg.scale_error) + self.cfg.yaw_drift_rps + n2 * self.cfg.omega_noise_rps,
+                w_true * (1.0 + self.cfg.scale_error)
+                    + self.cfg.yaw_drift_rps
+                    + n2 * self.cfg.omega_noise_rps,
             )
         } else {
             (0.0, 0.0)
@@ -500,7 +550,12 @@ pub(crate) struct Gnss {
 }
 
 impl Gnss {
-    pub(crate) fn new(cfg: &GnssConfig, datum: common::msg::Datum, primary: [f64; 3], secondary: [f64; 3]) -> Self {
+    pub(crate) fn new(
+        cfg: &GnssConfig,
+        datum: common::msg::Datum,
+        primary: [f64; 3],
+        secondary: [f64; 3],
+    ) -> Self {
         Self {
             cfg: cfg.clone(),
             frame: LocalFrame::new(datum),
@@ -521,8 +576,22 @@ impl Gnss {
                 continue;
             }
             let d = match s.shape {
-                crate::world::Shape::Box { cx, cy, hx, hy, yaw } => crate::world::Obb { cx, cy, hx, hy, yaw }.distance_to(x, y),
-                crate::world::Shape::Cylinder { cx, cy, r } | crate::world::Shape::Ellipsoid { cx, cy, r } => {
+                crate::world::Shape::Box {
+                    cx,
+                    cy,
+                    hx,
+                    hy,
+                    yaw,
+                } => crate::world::Obb {
+                    cx,
+                    cy,
+                    hx,
+                    hy,
+                    yaw,
+                }
+                .distance_to(x, y),
+                crate::world::Shape::Cylinder { cx, cy, r }
+                | crate::world::Shape::Ellipsoid { cx, cy, r } => {
                     ((cx - x).hypot(cy - y) - r).max(0.0)
                 }
             };
@@ -532,7 +601,13 @@ impl Gnss {
     }
 
     /// Emits the sentences of an epoch if one falls at or before `t_s`.
-    pub(crate) fn step(&mut self, world: &World, t_s: f64, base: &Isometry3<f64>, rng: &mut SmallRng) -> Vec<GnssSentence> {
+    pub(crate) fn step(
+        &mut self,
+        world: &World,
+        t_s: f64,
+        base: &Isometry3<f64>,
+        rng: &mut SmallRng,
+    ) -> Vec<GnssSentence> {
         if t_s + 1e-9 < self.next_t_s {
             return Vec::new();
         }
@@ -596,7 +671,11 @@ impl Gnss {
         };
         let rtk = matches!(fix, GnssFix::Fixed | GnssFix::Float);
         let bl = p1 - p2;
-        let hsig = if fix == GnssFix::Fixed { self.cfg.heading_sigma_deg } else { 5.0 * self.cfg.heading_sigma_deg };
+        let hsig = if fix == GnssFix::Fixed {
+            self.cfg.heading_sigma_deg
+        } else {
+            5.0 * self.cfg.heading_sigma_deg
+        };
         let yaw_enu_deg = bl.y.atan2(bl.x).to_degrees() + gauss() * hsig;
         let tilt_deg = bl.z.atan2(bl.x.hypot(bl.y)).to_degrees() + gauss() * hsig;
         let avr = Avr {

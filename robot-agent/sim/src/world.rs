@@ -116,11 +116,21 @@ impl HeightField {
     }
 
     /// Index ranges of vertices inside an axis-aligned box (clamped to the grid).
-    fn vertex_range(&self, xmin: f64, ymin: f64, xmax: f64, ymax: f64) -> Option<(usize, usize, usize, usize)> {
+    fn vertex_range(
+        &self,
+        xmin: f64,
+        ymin: f64,
+        xmax: f64,
+        ymax: f64,
+    ) -> Option<(usize, usize, usize, usize)> {
         let i0 = ((xmin - self.x0_m) / self.res_m).ceil().max(0.0);
         let j0 = ((ymin - self.y0_m) / self.res_m).ceil().max(0.0);
-        let i1 = ((xmax - self.x0_m) / self.res_m).floor().min((self.nx - 1) as f64);
-        let j1 = ((ymax - self.y0_m) / self.res_m).floor().min((self.ny - 1) as f64);
+        let i1 = ((xmax - self.x0_m) / self.res_m)
+            .floor()
+            .min((self.nx - 1) as f64);
+        let j1 = ((ymax - self.y0_m) / self.res_m)
+            .floor()
+            .min((self.ny - 1) as f64);
         if i1 < i0 || j1 < j0 {
             return None;
         }
@@ -155,7 +165,12 @@ impl HeightField {
                     max_m[bj * nbx + bi] = m;
                 }
             }
-            self.mips.push(Mip { cells, nbx, nby, max_m });
+            self.mips.push(Mip {
+                cells,
+                nbx,
+                nby,
+                max_m,
+            });
         }
         self.max_h_m = self.h_m.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b)) as f64;
     }
@@ -234,7 +249,9 @@ impl HeightField {
                     let zmin = o.z + d.z * if d.z < 0.0 { t1 } else { t0 };
                     if zmin <= m.max_m[iy as usize * m.nbx + ix as usize] as f64 {
                         let f = MIP_FACTORS[lvl - 1];
-                        if let Some(t) = self.march(lvl - 1, o, d, t0, t1, Some((ix as usize, iy as usize, f))) {
+                        if let Some(t) =
+                            self.march(lvl - 1, o, d, t0, t1, Some((ix as usize, iy as usize, f)))
+                        {
                             return Some(t);
                         }
                     }
@@ -260,7 +277,15 @@ impl HeightField {
 
     /// Crossing of the ray with the bilinear surface of fine cell (i, j) within `[t0, t1]`.
     #[inline]
-    fn cell_hit(&self, i: usize, j: usize, o: &Point3<f64>, d: &Vector3<f64>, t0: f64, t1: f64) -> Option<f64> {
+    fn cell_hit(
+        &self,
+        i: usize,
+        j: usize,
+        o: &Point3<f64>,
+        d: &Vector3<f64>,
+        t0: f64,
+        t1: f64,
+    ) -> Option<f64> {
         let inv = 1.0 / self.res_m;
         let cx = self.x0_m + i as f64 * self.res_m;
         let cy = self.y0_m + j as f64 * self.res_m;
@@ -416,7 +441,13 @@ impl Solid {
                     tout = (-b + sq) / a;
                 }
             }
-            Shape::Box { cx, cy, hx, hy, yaw } => {
+            Shape::Box {
+                cx,
+                cy,
+                hx,
+                hy,
+                yaw,
+            } => {
                 let (s, c) = yaw.sin_cos();
                 let ox = o.x - cx;
                 let oy = o.y - cy;
@@ -424,7 +455,9 @@ impl Solid {
                 let ly = -s * ox + c * oy;
                 let dx = c * d.x + s * d.y;
                 let dy = -s * d.x + c * d.y;
-                if !slab(lx, dx, -hx, hx, &mut tin, &mut tout) || !slab(ly, dy, -hy, hy, &mut tin, &mut tout) {
+                if !slab(lx, dx, -hx, hx, &mut tin, &mut tout)
+                    || !slab(ly, dy, -hy, hy, &mut tin, &mut tout)
+                {
                     return None;
                 }
             }
@@ -441,8 +474,22 @@ impl Solid {
     /// Whether the footprint overlaps an oriented rectangle.
     pub fn overlaps(&self, r: &Obb) -> bool {
         match self.shape {
-            Shape::Cylinder { cx, cy, r: rad } | Shape::Ellipsoid { cx, cy, r: rad } => r.distance_to(cx, cy) <= rad,
-            Shape::Box { cx, cy, hx, hy, yaw } => r.overlaps(&Obb { cx, cy, hx, hy, yaw }),
+            Shape::Cylinder { cx, cy, r: rad } | Shape::Ellipsoid { cx, cy, r: rad } => {
+                r.distance_to(cx, cy) <= rad
+            }
+            Shape::Box {
+                cx,
+                cy,
+                hx,
+                hy,
+                yaw,
+            } => r.overlaps(&Obb {
+                cx,
+                cy,
+                hx,
+                hy,
+                yaw,
+            }),
         }
     }
 }
@@ -589,9 +636,16 @@ impl Walker {
                 }
             }
         };
-        let k = self.cum_m.partition_point(|&c| c <= s).clamp(1, self.points.len() - 1);
+        let k = self
+            .cum_m
+            .partition_point(|&c| c <= s)
+            .clamp(1, self.points.len() - 1);
         let l = self.cum_m[k] - self.cum_m[k - 1];
-        let f = if l > 1e-12 { (s - self.cum_m[k - 1]) / l } else { 0.0 };
+        let f = if l > 1e-12 {
+            (s - self.cum_m[k - 1]) / l
+        } else {
+            0.0
+        };
         let a = self.points[k - 1];
         let b = self.points[k];
         [a[0] + (b[0] - a[0]) * f, a[1] + (b[1] - a[1]) * f]
@@ -696,9 +750,13 @@ struct BaseTerrain {
 impl BaseTerrain {
     fn new(amplitude_m: f64, wavelength_m: f64, seed: u64) -> Self {
         // A tiny LCG: the phases only need to differ per seed, not to be statistically good.
-        let mut s = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        let mut s = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         let mut next = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (s >> 11) as f64 / (1u64 << 53) as f64
         };
         let amps = [1.0, 0.5, 0.25];
@@ -708,13 +766,21 @@ impl BaseTerrain {
             let dir = next() * std::f64::consts::TAU;
             let lambda = wavelength_m / [1.0, 1.7, 2.9][k];
             let kk = std::f64::consts::TAU / lambda;
-            *w = (kk * dir.cos(), kk * dir.sin(), next() * std::f64::consts::TAU, amps[k] * norm);
+            *w = (
+                kk * dir.cos(),
+                kk * dir.sin(),
+                next() * std::f64::consts::TAU,
+                amps[k] * norm,
+            );
         }
         Self { waves }
     }
 
     fn height(&self, x: f64, y: f64) -> f64 {
-        self.waves.iter().map(|&(kx, ky, ph, a)| a * (kx * x + ky * y + ph).sin()).sum()
+        self.waves
+            .iter()
+            .map(|&(kx, ky, ph, a)| a * (kx * x + ky * y + ph).sin())
+            .sum()
     }
 }
 
@@ -730,7 +796,12 @@ fn seg_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
 }
 
 fn polyline_bounds(pts: &[[f64; 2]], pad: f64) -> (f64, f64, f64, f64) {
-    let mut b = (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
+    let mut b = (
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    );
     for p in pts {
         b = (b.0.min(p[0]), b.1.min(p[1]), b.2.max(p[0]), b.3.max(p[1]));
     }
@@ -768,7 +839,10 @@ impl World {
         for p in &sc.path {
             let (x0, y0, x1, y1) = polyline_bounds(&p.points, p.width_m);
             w.for_vertices(x0, y0, x1, y1, |_, x, y, _, fl| {
-                if p.points.windows(2).any(|s| seg_distance([x, y], s[0], s[1]) <= 0.5 * p.width_m) {
+                if p.points
+                    .windows(2)
+                    .any(|s| seg_distance([x, y], s[0], s[1]) <= 0.5 * p.width_m)
+                {
                     *fl |= FLAG_PAVED;
                 }
             });
@@ -786,7 +860,10 @@ impl World {
             } else if let Some(pts) = &s.points {
                 let (x0, y0, x1, y1) = polyline_bounds(pts, s.width_m);
                 w.for_vertices(x0, y0, x1, y1, |b, x, y, h, fl| {
-                    if pts.windows(2).any(|q| seg_distance([x, y], q[0], q[1]) <= 0.5 * s.width_m) {
+                    if pts
+                        .windows(2)
+                        .any(|q| seg_distance([x, y], q[0], q[1]) <= 0.5 * s.width_m)
+                    {
                         *h = (b + s.height_m) as f32;
                         *fl |= FLAG_PAVED;
                     }
@@ -881,7 +958,14 @@ impl World {
     }
 
     /// Calls `f(base_height, x, y, &mut height, &mut flags)` for vertices in a box.
-    fn for_vertices(&mut self, x0: f64, y0: f64, x1: f64, y1: f64, mut f: impl FnMut(f64, f64, f64, &mut f32, &mut u8)) {
+    fn for_vertices(
+        &mut self,
+        x0: f64,
+        y0: f64,
+        x1: f64,
+        y1: f64,
+        mut f: impl FnMut(f64, f64, f64, &mut f32, &mut u8),
+    ) {
         let Some((i0, j0, i1, j1)) = self.ground.vertex_range(x0, y0, x1, y1) else {
             return;
         };
@@ -900,7 +984,9 @@ impl World {
     fn ground_range(&self, pts: &[[f64; 2]]) -> (f64, f64) {
         let mut r = (f64::INFINITY, f64::NEG_INFINITY);
         for p in pts {
-            let h = self.ground_height(p[0], p[1]).unwrap_or_else(|| self.base.height(p[0], p[1]));
+            let h = self
+                .ground_height(p[0], p[1])
+                .unwrap_or_else(|| self.base.height(p[0], p[1]));
             r = (r.0.min(h), r.1.max(h));
         }
         r
@@ -909,7 +995,16 @@ impl World {
     fn obb_ground_range(&self, o: &Obb) -> (f64, f64) {
         let (s, c) = o.yaw.sin_cos();
         let mut pts = vec![[o.cx, o.cy]];
-        for (a, b) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0), (0.0, 1.0), (0.0, -1.0), (1.0, 0.0), (-1.0, 0.0)] {
+        for (a, b) in [
+            (-1.0, -1.0),
+            (1.0, -1.0),
+            (1.0, 1.0),
+            (-1.0, 1.0),
+            (0.0, 1.0),
+            (0.0, -1.0),
+            (1.0, 0.0),
+            (-1.0, 0.0),
+        ] {
             let lx = a * o.hx;
             let ly = b * o.hy;
             pts.push([o.cx + c * lx - s * ly, o.cy + s * lx + c * ly]);
@@ -1001,13 +1096,25 @@ impl World {
             cy: t.y_m,
             r: t.trunk_radius_m,
         };
-        self.push(cyl, g - 0.1, g + t.canopy_base_m + 0.5 * t.canopy_height_m, SolidKind::Trunk, f);
+        self.push(
+            cyl,
+            g - 0.1,
+            g + t.canopy_base_m + 0.5 * t.canopy_height_m,
+            SolidKind::Trunk,
+            f,
+        );
         let ell = Shape::Ellipsoid {
             cx: t.x_m,
             cy: t.y_m,
             r: t.canopy_radius_m,
         };
-        self.push(ell, g + t.canopy_base_m, g + t.canopy_base_m + t.canopy_height_m, SolidKind::Canopy, f);
+        self.push(
+            ell,
+            g + t.canopy_base_m,
+            g + t.canopy_base_m + t.canopy_height_m,
+            SolidKind::Canopy,
+            f,
+        );
     }
 
     fn add_box(&mut self, b: &crate::scenario::BoxSpec) {
@@ -1135,9 +1242,19 @@ impl World {
 
     /// Ray cast against ground, every solid and the walkers at `t_s` (`dir` need not be unit).
     /// Sensors use a faster path with per-sweep candidate lists; this one is for tests and tools.
-    pub fn raycast(&self, origin: &Point3<f64>, dir: &Vector3<f64>, max_range_m: f64, t_s: f64) -> Option<Hit> {
+    pub fn raycast(
+        &self,
+        origin: &Point3<f64>,
+        dir: &Vector3<f64>,
+        max_range_m: f64,
+        t_s: f64,
+    ) -> Option<Hit> {
         let d = dir.normalize();
-        let walkers: Vec<Solid> = self.walkers_at(t_s).iter().map(WalkerState::solid).collect();
+        let walkers: Vec<Solid> = self
+            .walkers_at(t_s)
+            .iter()
+            .map(WalkerState::solid)
+            .collect();
         let all: Vec<u32> = (0..self.solids.len() as u32).collect();
         let wk: Vec<u32> = (0..walkers.len() as u32).collect();
         self.raycast_candidates(origin, &d, max_range_m, &all, &walkers, &wk)
@@ -1180,7 +1297,10 @@ impl World {
                 kind: HitKind::Ground { grass },
             });
         }
-        kind.map(|k| Hit { range_m: best, kind: k })
+        kind.map(|k| Hit {
+            range_m: best,
+            kind: k,
+        })
     }
 }
 
@@ -1225,7 +1345,11 @@ height_m = 3.0
             let d = Vector3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
             let h = w.raycast(&o, &d, 100.0, 0.0).unwrap();
             let want = 0.75 / 15f64.to_radians().sin();
-            assert!((h.range_m - want).abs() < 1e-3, "az {az}: {} vs {want}", h.range_m);
+            assert!(
+                (h.range_m - want).abs() < 1e-3,
+                "az {az}: {} vs {want}",
+                h.range_m
+            );
             assert!(matches!(h.kind, HitKind::Ground { .. }));
         }
         // Horizontal towards the wall face at x = 9.9.
@@ -1237,7 +1361,9 @@ height_m = 3.0
             assert!(matches!(h.kind, HitKind::Solid(_)));
         }
         // Up and away from the wall: nothing.
-        assert!(w.raycast(&o, &Vector3::new(-1.0, 0.0, 0.1), 100.0, 0.0).is_none());
+        assert!(w
+            .raycast(&o, &Vector3::new(-1.0, 0.0, 0.1), 100.0, 0.0)
+            .is_none());
         // Grazing rays (-1 deg) hit the flat ground at 0.75 / tan(1 deg) = 43 m, beyond the world edge.
         let d = Vector3::new(-(1f64.to_radians().cos()), 0.0, -(1f64.to_radians().sin()));
         assert!(w.raycast(&o, &d, 100.0, 0.0).is_none());

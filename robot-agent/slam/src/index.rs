@@ -5,6 +5,7 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use std::num::NonZeroUsize;
 
 /// An immutable 3D KD-tree over `f32` points; items are indices into the slice it was built from.
+#[derive(Default)]
 pub struct KdIndex {
     tree: Option<ImmutableKdTree<f32, 3>>,
     len: usize,
@@ -13,12 +14,6 @@ pub struct KdIndex {
 impl std::fmt::Debug for KdIndex {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("KdIndex").field("len", &self.len).finish()
-    }
-}
-
-impl Default for KdIndex {
-    fn default() -> Self {
-        Self { tree: None, len: 0 }
     }
 }
 

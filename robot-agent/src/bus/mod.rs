@@ -17,7 +17,10 @@ use std::time::{Duration, Instant};
 
 use common::grid::TileIndex;
 use common::keys::{self, RobotId, Topic};
-use common::msg::{self, DriveCmd, GoalCmd, GoalTarget, Path, Pose, Route, RouteCmd, Session, SpeedCmd, Status, StopCmd};
+use common::msg::{
+    self, DriveCmd, GoalCmd, GoalTarget, Path, Pose, Route, RouteCmd, Session, SpeedCmd, Status,
+    StopCmd,
+};
 use tokio::sync::mpsc;
 use zenoh::qos::CongestionControl;
 
@@ -113,11 +116,13 @@ impl ZenohSettings {
         // and tests on one host must not find each other.
         set(&mut c, "scouting/multicast/enabled", "false")?;
         if !self.connect.is_empty() {
-            let v = serde_json::to_string(&self.connect).map_err(|e| BusError::Config(e.to_string()))?;
+            let v = serde_json::to_string(&self.connect)
+                .map_err(|e| BusError::Config(e.to_string()))?;
             set(&mut c, "connect/endpoints", &v)?;
         }
         if !self.listen.is_empty() {
-            let v = serde_json::to_string(&self.listen).map_err(|e| BusError::Config(e.to_string()))?;
+            let v =
+                serde_json::to_string(&self.listen).map_err(|e| BusError::Config(e.to_string()))?;
             set(&mut c, "listen/endpoints", &v)?;
         }
         Ok(c)
@@ -260,7 +265,10 @@ pub fn validate(cmd: &Command, limits: &CommandLimits) -> Result<(), String> {
     match cmd {
         Command::Goal(g) => {
             if !(g.tolerance_m.is_finite() && (0.0..=100.0).contains(&g.tolerance_m)) {
-                return Err(format!("goal: tolerance {} m out of range 0-100", g.tolerance_m));
+                return Err(format!(
+                    "goal: tolerance {} m out of range 0-100",
+                    g.tolerance_m
+                ));
             }
             match g.target {
                 GoalTarget::Map { x_m, y_m } => {
@@ -274,7 +282,11 @@ pub fn validate(cmd: &Command, limits: &CommandLimits) -> Result<(), String> {
                         ));
                     }
                 }
-                GoalTarget::Gnss { lat_deg, lon_deg, h_m } => {
+                GoalTarget::Gnss {
+                    lat_deg,
+                    lon_deg,
+                    h_m,
+                } => {
                     if !(ok_f64(lat_deg) && (-90.0..=90.0).contains(&lat_deg)) {
                         return Err(format!("goal: latitude {lat_deg} out of range"));
                     }
@@ -309,10 +321,8 @@ pub fn validate(cmd: &Command, limits: &CommandLimits) -> Result<(), String> {
             }
         }
         Command::Route(r) => match r {
-            RouteCmd::Record { name } => {
-                if name.trim().is_empty() || name.len() > 200 {
-                    return Err("route: name must have 1-200 characters".into());
-                }
+            RouteCmd::Record { name } if (name.trim().is_empty() || name.len() > 200) => {
+                return Err("route: name must have 1-200 characters".into());
             }
             RouteCmd::Repeat { route, .. } => {
                 if route.points.is_empty() {
@@ -323,7 +333,10 @@ pub fn validate(cmd: &Command, limits: &CommandLimits) -> Result<(), String> {
                     .iter()
                     .any(|p| !(ok_f64(p.x_m) && ok_f64(p.y_m) && p.yaw_rad.is_finite()))
                 {
-                    return Err(format!("route: route {} has non-finite points", route.route_id));
+                    return Err(format!(
+                        "route: route {} has non-finite points",
+                        route.route_id
+                    ));
                 }
             }
             _ => {}
@@ -335,13 +348,24 @@ pub fn validate(cmd: &Command, limits: &CommandLimits) -> Result<(), String> {
 
 /// Decodes and validates one command payload on `key`. `None` when the key is not a command of
 /// this robot. Undecodable payloads and invalid commands come back as `Refused`.
-pub fn parse_command(robot: &RobotId, key: &str, payload: &[u8], limits: &CommandLimits) -> Option<(Command, bool)> {
+pub fn parse_command(
+    robot: &RobotId,
+    key: &str,
+    payload: &[u8],
+    limits: &CommandLimits,
+) -> Option<(Command, bool)> {
     let (rid, topic) = keys::parse(key).ok()?;
     if &rid != robot || !topic.is_command() {
         return None;
     }
-    fn dec<T: serde::de::DeserializeOwned>(kind: &str, b: &[u8], f: fn(T) -> Command) -> Result<Command, String> {
-        msg::decode::<T>(b).map(f).map_err(|e| format!("{kind}: {e}"))
+    fn dec<T: serde::de::DeserializeOwned>(
+        kind: &str,
+        b: &[u8],
+        f: fn(T) -> Command,
+    ) -> Result<Command, String> {
+        msg::decode::<T>(b)
+            .map(f)
+            .map_err(|e| format!("{kind}: {e}"))
     }
     let decoded = match topic {
         Topic::CmdGoal => dec("goal", payload, Command::Goal),
@@ -371,7 +395,10 @@ fn now_unix_ms() -> u64 {
 impl RobotBus {
     /// Opens the session, declares the liveliness token, the queryables and the command
     /// subscriber. Commands go to `commands`.
-    pub async fn open(config: BusConfig, commands: std::sync::mpsc::Sender<Command>) -> Result<Self, BusError> {
+    pub async fn open(
+        config: BusConfig,
+        commands: std::sync::mpsc::Sender<Command>,
+    ) -> Result<Self, BusError> {
         let zc = config.zenoh.to_config()?;
         let session = zenoh::open(zc).await.map_err(zerr)?;
         let robot = config.robot.clone();
@@ -412,7 +439,8 @@ impl RobotBus {
                         }
                         Command::Drive(d) => {
                             let now = Instant::now();
-                            let mut last = shared.last_drive.lock().unwrap_or_else(|p| p.into_inner());
+                            let mut last =
+                                shared.last_drive.lock().unwrap_or_else(|p| p.into_inner());
                             // Older sequence numbers are stale duplicates, unless the deadman has
                             // expired (a restarted station counts from anew).
                             if let Some((t, seq)) = *last {
@@ -495,7 +523,8 @@ impl RobotBus {
             let key = keys::key(&robot, Topic::Route);
             tasks.push(tokio::spawn(async move {
                 while let Ok(query) = q.recv_async().await {
-                    let routes: Vec<Vec<u8>> = shared.lock_served().routes.values().cloned().collect();
+                    let routes: Vec<Vec<u8>> =
+                        shared.lock_served().routes.values().cloned().collect();
                     for r in routes {
                         if let Err(e) = query.reply(&key, r).await {
                             tracing::warn!("route reply failed: {e}");
@@ -552,8 +581,19 @@ impl RobotBus {
     /// Publishes a changed tile, already encoded with `common::grid::encode_tile`, and keeps it
     /// for the tile queryable.
     pub async fn publish_tile(&self, index: TileIndex, encoded: Vec<u8>) -> Result<(), BusError> {
-        self.shared.lock_served().tiles.insert(index, encoded.clone());
-        self.put(Topic::Tile { tx: index.tx, ty: index.ty }, encoded, true).await
+        self.shared
+            .lock_served()
+            .tiles
+            .insert(index, encoded.clone());
+        self.put(
+            Topic::Tile {
+                tx: index.tx,
+                ty: index.ty,
+            },
+            encoded,
+            true,
+        )
+        .await
     }
 
     /// Publishes the planned path.
@@ -569,7 +609,10 @@ impl RobotBus {
     /// Publishes (and from now on serves) a recorded route.
     pub async fn publish_route(&self, r: &Route) -> Result<(), BusError> {
         let b = msg::encode(r);
-        self.shared.lock_served().routes.insert(r.route_id.clone(), b.clone());
+        self.shared
+            .lock_served()
+            .routes
+            .insert(r.route_id.clone(), b.clone());
         self.put(Topic::Route, b, true).await
     }
 
@@ -754,7 +797,12 @@ impl BusHandle {
 
     /// True when no drive command arrived within [`DEADMAN`] before `now` (or none ever).
     pub fn drive_is_stale(&self, now: Instant) -> bool {
-        match *self.shared.last_drive.lock().unwrap_or_else(|p| p.into_inner()) {
+        match *self
+            .shared
+            .last_drive
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+        {
             Some((t, _)) => now.saturating_duration_since(t) > DEADMAN,
             None => true,
         }
@@ -802,7 +850,10 @@ mod tests {
     fn valid_commands_pass() {
         let g = GoalCmd {
             goal_id: 1,
-            target: GoalTarget::Map { x_m: 3.0, y_m: -2.0 },
+            target: GoalTarget::Map {
+                x_m: 3.0,
+                y_m: -2.0,
+            },
             tolerance_m: 0.5,
         };
         let (c, de) = parse("terranav/husky-1/cmd/goal", &msg::encode(&g)).unwrap();
@@ -817,19 +868,37 @@ mod tests {
     fn bad_commands_are_refused_with_reasons() {
         let g = GoalCmd {
             goal_id: 1,
-            target: GoalTarget::Gnss { lat_deg: 91.0, lon_deg: 0.0, h_m: None },
+            target: GoalTarget::Gnss {
+                lat_deg: 91.0,
+                lon_deg: 0.0,
+                h_m: None,
+            },
             tolerance_m: 0.5,
         };
         let (c, de) = parse("terranav/husky-1/cmd/goal", &msg::encode(&g)).unwrap();
-        assert!(matches!(c, Command::Refused { ref reason } if reason.contains("latitude")), "{c:?}");
+        assert!(
+            matches!(c, Command::Refused { ref reason } if reason.contains("latitude")),
+            "{c:?}"
+        );
         assert!(!de);
-        let d = DriveCmd { seq: 1, v_mps: f32::NAN, omega_rps: 0.0, deadman: true };
+        let d = DriveCmd {
+            seq: 1,
+            v_mps: f32::NAN,
+            omega_rps: 0.0,
+            deadman: true,
+        };
         let (c, _) = parse("terranav/husky-1/cmd/drive", &msg::encode(&d)).unwrap();
         assert!(matches!(c, Command::Refused { .. }));
-        let d = DriveCmd { seq: 1, v_mps: 5.0, omega_rps: 0.0, deadman: true };
+        let d = DriveCmd {
+            seq: 1,
+            v_mps: 5.0,
+            omega_rps: 0.0,
+            deadman: true,
+        };
         let (c, _) = parse("terranav/husky-1/cmd/drive", &msg::encode(&d)).unwrap();
         assert!(matches!(c, Command::Refused { ref reason } if reason.contains("speed")));
-        let (c, de) = parse("terranav/husky-1/cmd/stop", &[1, 2, 3, 4]).unwrap();
+        // Schema 1, then a string that claims 9 bytes and has one invalid one.
+        let (c, de) = parse("terranav/husky-1/cmd/stop", &[1, 9, 0xff]).unwrap();
         assert!(matches!(c, Command::Refused { .. }));
         assert!(de);
         // Another schema version.
@@ -839,16 +908,25 @@ mod tests {
         assert!(matches!(c, Command::Refused { ref reason } if reason.contains("schema")));
         assert!(de);
         // Another robot's or a non-command key is not ours.
-        assert!(parse("terranav/husky-2/cmd/stop", &msg::encode(&StopCmd::default())).is_none());
+        assert!(parse(
+            "terranav/husky-2/cmd/stop",
+            &msg::encode(&StopCmd::default())
+        )
+        .is_none());
         assert!(parse("terranav/husky-1/pose", &[]).is_none());
     }
 
     #[test]
     fn config_has_multicast_off_and_short_lease() {
-        let c = ZenohSettings::connect_to("tcp/127.0.0.1:7999").to_config().unwrap();
+        let c = ZenohSettings::connect_to("tcp/127.0.0.1:7999")
+            .to_config()
+            .unwrap();
         let j = format!("{c}");
         assert!(j.contains("7999"), "{j}");
         assert_eq!(c.get_json("scouting/multicast/enabled").unwrap(), "false");
-        assert_eq!(c.get_json("transport/link/tx/lease").unwrap(), LEASE_MS.to_string());
+        assert_eq!(
+            c.get_json("transport/link/tx/lease").unwrap(),
+            LEASE_MS.to_string()
+        );
     }
 }

@@ -281,4 +281,57 @@ garbage \xff\n";
         assert_eq!(lines[3]["ignored"], true);
         assert_eq!(lines[4]["line"], 7);
     }
+
+    /// The CLI's JSON carries the library's values (which `common/tests/gnss_logs.rs` checks
+    /// against gpsd) for every sentence of every real log, with no bad lines.
+    #[test]
+    fn real_logs_decode_without_errors() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let dir = root.join("../shared/data/gnss");
+        if !dir.is_dir() {
+            println!("skipping real_logs_decode_without_errors: ../shared/data is absent");
+            return;
+        }
+        for name in [
+            "nmea-rtk.log",
+            "hemi.log",
+            "cat-ms352.log",
+            "trimble-avr.txt",
+        ] {
+            let bytes = std::fs::read(dir.join(name)).expect("read log");
+            let mut out = Vec::new();
+            let summary = decode_bytes(&bytes, &mut out).expect("decode");
+            assert_eq!(summary.bad, 0, "{name}");
+            let text = String::from_utf8(out).expect("utf8");
+            let mut compared = 0;
+            for json in text.lines() {
+                let v: Value = serde_json::from_str(json).expect("json");
+                let n = v["line"].as_u64().expect("line") as usize;
+                let line = String::from_utf8_lossy(
+                    bytes.split(|&b| b == b'\n').nth(n - 1).expect("line n"),
+                )
+                .into_owned();
+                let s = parse_sentence(line.trim()).expect("parses");
+                assert_eq!(v["sentence"], s.kind(), "{name}:{n}");
+                if let Sentence::Gga(g) = s {
+                    for (key, want) in [
+                        ("lat", g.lat_deg),
+                        ("lon", g.lon_deg),
+                        ("alt_hae", g.alt_hae_m()),
+                    ] {
+                        match (v[key].as_f64(), want) {
+                            (Some(got), Some(want)) => {
+                                assert!((got - want).abs() <= 1e-12, "{name}:{n} {key}")
+                            }
+                            (None, None) => {}
+                            other => panic!("{name}:{n} {key}: {other:?}"),
+                        }
+                    }
+                    compared += 1;
+                }
+            }
+            assert_eq!(summary.decoded, text.lines().count(), "{name}");
+            assert!(compared > 0 || name == "trimble-avr.txt", "{name}");
+        }
+    }
 }

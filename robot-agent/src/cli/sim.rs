@@ -90,11 +90,17 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
         return run_render(r);
     }
     if args.mission.is_mission() || !args.headless {
-        let path = args.scenario.as_ref().context("--scenario FILE is required")?;
+        let path = args
+            .scenario
+            .as_ref()
+            .context("--scenario FILE is required")?;
         let scenario = sim::Scenario::load(path)?;
         if !args.headless {
             anyhow::ensure!(!args.mission.is_mission(), "--goal/--goal-gnss/--teach-repeat need --headless (live robots take goals over the bus)");
-            let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+            let name = path
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default();
             return super::mission::run_live(&scenario, &name, &args.mission, args.seed);
         }
         return super::mission::run_headless(&scenario, &args.mission, args.seed);
@@ -110,7 +116,10 @@ enum Driver {
 
 /// Headless run: drive the plant, optionally record, print a JSON summary.
 pub fn run_headless(args: &SimArgs) -> anyhow::Result<()> {
-    let path = args.scenario.as_ref().context("--scenario FILE is required")?;
+    let path = args
+        .scenario
+        .as_ref()
+        .context("--scenario FILE is required")?;
     let scenario = sim::Scenario::load(path)?;
     if !(args.duration.is_finite() && args.duration > 0.0) {
         anyhow::bail!("--duration must be > 0");
@@ -121,7 +130,10 @@ pub fn run_headless(args: &SimArgs) -> anyhow::Result<()> {
     let mut driver = match (args.drive, args.follow_drive) {
         (Some((v, w)), _) => Driver::Constant(v, w),
         (None, true) => {
-            let d = scenario.drive.as_ref().context("scenario has no [drive] polyline")?;
+            let d = scenario
+                .drive
+                .as_ref()
+                .context("scenario has no [drive] polyline")?;
             Driver::Path(sim::drive::PathDriver::new(&d.points, d.speed_mps))
         }
         (None, false) => anyhow::bail!("give --drive V,W or --follow-drive"),
@@ -136,7 +148,10 @@ pub fn run_headless(args: &SimArgs) -> anyhow::Result<()> {
     };
     let mut simu = sim::Simulation::new(&scenario, cfg);
     let mut rec = match &args.record {
-        Some(dir) => Some(sim::record::Recorder::create(dir, args.record_depth).with_context(|| format!("creating {}", dir.display()))?),
+        Some(dir) => Some(
+            sim::record::Recorder::create(dir, args.record_depth)
+                .with_context(|| format!("creating {}", dir.display()))?,
+        ),
         None => None,
     };
     let steps = (args.duration / args.dt).round() as usize;

@@ -57,7 +57,8 @@ struct RegisterArgs {
     /// Initial guess of target<-source: "x y z roll pitch yaw" (metres, radians).
     #[arg(long, allow_hyphen_values = true)]
     init: Option<String>,
-    /// SLAM configuration (TOML) whose filters and ICP sections are used.
+    /// SLAM configuration (TOML) whose filters and ICP sections are used; for dense scan pairs
+    /// config/slam-pair.toml (the robot's real-time defaults when absent).
     #[arg(long)]
     config: Option<PathBuf>,
 }
