@@ -89,6 +89,11 @@ pub fn zenoh_config(
             &serde_json::to_string(listen).map_err(zerr)?,
         )
         .map_err(zerr)?;
+    } else if file.is_none() {
+        // Zenoh's peer default listens on every interface (`tcp/[::]:0`); a session that only
+        // connects (CLI commands, tests) needs at most a loopback port.
+        c.insert_json5("listen/endpoints", "[\"tcp/127.0.0.1:0\"]")
+            .map_err(zerr)?;
     }
     if !connect.is_empty() {
         c.insert_json5(

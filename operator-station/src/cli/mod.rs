@@ -1,6 +1,8 @@
 //! Command line: `serve`, `demo`, and scripted use (`robots`, `goal`, `stop`, `export`).
 //! `robots`, `goal` and `stop` act directly over Zenoh (no station needed); exports read the
-//! station's database.
+//! station's database. `bench` measures merge throughput and pose latency.
+
+pub mod bench;
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -58,6 +60,8 @@ pub enum Cmd {
     Stop(StopArgs),
     /// Export from the database.
     Export(ExportArgs),
+    /// Benchmarks: merge throughput and pose latency on loopback, with same-run baselines.
+    Bench(bench::BenchArgs),
 }
 
 /// `serve` options.
@@ -161,6 +165,9 @@ pub enum ExportWhat {
         /// Datum id (default: the one with most tiles).
         #[arg(long)]
         datum: Option<String>,
+        /// Pixels per cell along each side (1 = one pixel per 0.2 m cell).
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=8))]
+        px_per_cell: u32,
         /// Database file.
         #[arg(long, default_value = "terranav-station.sqlite")]
         db: PathBuf,
@@ -203,6 +210,7 @@ pub fn main() -> anyhow::Result<()> {
             Cmd::Goal(a) => goal(a).await,
             Cmd::Stop(a) => stop(a).await,
             Cmd::Export(a) => export(a),
+            Cmd::Bench(a) => bench::run(a).await,
         }
     })
 }
@@ -588,7 +596,12 @@ async fn stop(a: StopArgs) -> anyhow::Result<()> {
 
 fn export(a: ExportArgs) -> anyhow::Result<()> {
     match a.what {
-        ExportWhat::Map { png, datum, db } => {
+        ExportWhat::Map {
+            png,
+            datum,
+            px_per_cell,
+            db,
+        } => {
             let c = open_existing(&db)?;
             let datums = crate::store::datums(&c)?;
             let mut map = crate::merge::MergedMap::default();
@@ -613,7 +626,7 @@ fn export(a: ExportArgs) -> anyhow::Result<()> {
                     datums.iter().map(|d| &d.datum_id).collect::<Vec<_>>()
                 )
             })?;
-            let bytes = crate::merge::datum_png(dm).context("empty map")?;
+            let bytes = crate::merge::datum_png_scaled(dm, px_per_cell).context("empty map")?;
             std::fs::write(&png, bytes).with_context(|| format!("write {}", png.display()))?;
             println!(
                 "{}",

@@ -205,8 +205,15 @@ pub fn tile_png(tile: &MergedTile, tile_cells: u16) -> Vec<u8> {
     png_rgba(n as u32, n as u32, &rgba)
 }
 
-/// The whole map of a datum as one PNG (north up), for exports. None when the datum is empty.
+/// The whole map of a datum as one PNG (north up), one pixel per cell, for exports. None when
+/// the datum is empty.
 pub fn datum_png(dm: &DatumMap) -> Option<Vec<u8>> {
+    datum_png_scaled(dm, 1)
+}
+
+/// [`datum_png`] with `px_per_cell` x `px_per_cell` pixels per cell (nearest neighbour, so cell
+/// edges stay sharp when a person looks at the export).
+pub fn datum_png_scaled(dm: &DatumMap, px_per_cell: u32) -> Option<Vec<u8>> {
     let first = dm.tiles.keys().next()?;
     let (mut x0, mut y0, mut x1, mut y1) = (first.tx, first.ty, first.tx, first.ty);
     for t in dm.tiles.keys() {
@@ -239,7 +246,21 @@ pub fn datum_png(dm: &DatumMap) -> Option<Vec<u8>> {
             }
         }
     }
-    Some(png_rgba(w as u32, h as u32, &rgba))
+    let k = px_per_cell.max(1) as usize;
+    if k == 1 {
+        return Some(png_rgba(w as u32, h as u32, &rgba));
+    }
+    let mut big = Vec::with_capacity(w * h * k * k * 4);
+    for row in rgba.chunks_exact(w * 4) {
+        let line: Vec<u8> = row
+            .chunks_exact(4)
+            .flat_map(|px| std::iter::repeat_n(px, k).flatten().copied())
+            .collect();
+        for _ in 0..k {
+            big.extend_from_slice(&line);
+        }
+    }
+    Some(png_rgba((w * k) as u32, (h * k) as u32, &big))
 }
 
 /// One tile to merge: the robot's encoded payload and the datum it belongs to.
@@ -483,5 +504,49 @@ mod tests {
             "top row is the northmost"
         );
         assert_eq!(buf[64 * 4 * 63 + 3], 0, "bottom row unknown, transparent");
+    }
+
+    #[test]
+    fn scaled_export_repeats_each_cell() {
+        // One obstacle cell at the north-west corner of tile (0, 1), tile (0, 0) below unknown.
+        let mut m = MergedMap::default();
+        m.merge(
+            "d0",
+            &tile(0, 1, |c, r| {
+                if c == 0 && r == 63 {
+                    cell(CellState::Obstacle, 1, 1, 0)
+                } else {
+                    cell(CellState::Traversable, 1, 1, 0)
+                }
+            }),
+        )
+        .unwrap();
+        m.merge("d0", &tile(0, 0, |_, _| Cell::UNKNOWN)).unwrap();
+        let decode = |png: Vec<u8>| {
+            let mut r = png::Decoder::new(std::io::Cursor::new(png))
+                .read_info()
+                .unwrap();
+            let mut buf = vec![0; r.output_buffer_size().unwrap()];
+            let info = r.next_frame(&mut buf).unwrap();
+            (info.width, info.height, buf)
+        };
+        let (w1, h1, one) = decode(datum_png(&m.datums["d0"]).unwrap());
+        let (w3, h3, three) = decode(datum_png_scaled(&m.datums["d0"], 3).unwrap());
+        assert_eq!((w1, h1), (64, 128));
+        assert_eq!((w3, h3), (192, 384));
+        let px = |buf: &[u8], w: u32, x: u32, y: u32| {
+            let i = ((y * w + x) * 4) as usize;
+            buf[i..i + 4].to_vec()
+        };
+        for y in 0..h3 {
+            for x in 0..w3 {
+                assert_eq!(
+                    px(&three, w3, x, y),
+                    px(&one, w1, x / 3, y / 3),
+                    "({x},{y})"
+                );
+            }
+        }
+        assert_eq!(px(&three, w3, 2, 2), vec![0xe5, 0x39, 0x35, 255]);
     }
 }

@@ -124,6 +124,10 @@ impl ZenohSettings {
             let v =
                 serde_json::to_string(&self.listen).map_err(|e| BusError::Config(e.to_string()))?;
             set(&mut c, "listen/endpoints", &v)?;
+        } else if self.file.is_none() {
+            // Zenoh's peer default listens on every interface (`tcp/[::]:0`); the robot connects
+            // to the station, so it only needs a loopback port for peers on its own machine.
+            set(&mut c, "listen/endpoints", "[\"tcp/127.0.0.1:0\"]")?;
         }
         Ok(c)
     }
@@ -928,5 +932,38 @@ mod tests {
             c.get_json("transport/link/tx/lease").unwrap(),
             LEASE_MS.to_string()
         );
+        assert_eq!(
+            c.get_json("listen/endpoints").unwrap(),
+            r#"["tcp/127.0.0.1:0"]"#,
+            "loopback only by default"
+        );
+    }
+
+    #[test]
+    fn shipped_zenoh_files_keep_the_lease_and_scouting_defaults() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/zenoh");
+        for f in ["robot.json5", "station.json5", "router-client.json5"] {
+            let c = ZenohSettings {
+                file: Some(dir.join(f)),
+                ..ZenohSettings::default()
+            }
+            .to_config()
+            .unwrap_or_else(|e| panic!("{f}: {e}"));
+            assert_eq!(
+                c.get_json("transport/link/tx/lease").unwrap(),
+                LEASE_MS.to_string(),
+                "{f}"
+            );
+            assert_eq!(
+                c.get_json("transport/link/tx/keep_alive").unwrap(),
+                "4",
+                "{f}"
+            );
+            assert_eq!(
+                c.get_json("scouting/multicast/enabled").unwrap(),
+                "false",
+                "{f}"
+            );
+        }
     }
 }

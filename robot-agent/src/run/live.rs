@@ -13,6 +13,20 @@ use std::time::{Duration, Instant};
 const POSE_PERIOD_S: f64 = 0.1;
 /// Status publication period, seconds (2 Hz, and on change).
 const STATUS_PERIOD_S: f64 = 0.5;
+/// Cell stamps below this (2001-09-09 in Unix seconds) are session seconds, not Unix seconds.
+const UNIX_STAMP_FLOOR_S: u32 = 1_000_000_000;
+
+/// Turns the mapper's cell stamps (session seconds: the algorithms have no clock) into the Unix
+/// seconds of the wire (`common::grid::Cell::stamp_s`), so that the station's newer-evidence-wins
+/// merge compares evidence of robots whose sessions started at different times.
+pub fn stamps_to_unix(tile: &mut common::grid::Tile, session_start_unix_ms: u64) {
+    for c in &mut tile.cells {
+        if c.state != common::grid::CellState::Unknown && c.stamp_s < UNIX_STAMP_FLOOR_S {
+            let ms = session_start_unix_ms + u64::from(c.stamp_s) * 1000;
+            c.stamp_s = u32::try_from(ms / 1000).unwrap_or(u32::MAX);
+        }
+    }
+}
 
 /// Runs one simulated robot on the bus until `stop` is set (Ctrl-C) or the process is killed.
 pub fn run_live(
@@ -74,7 +88,8 @@ pub fn run_live(
                 session_sent = true;
             }
         }
-        for tile in rig.agent.take_tiles() {
+        for mut tile in rig.agent.take_tiles() {
+            stamps_to_unix(&mut tile, rig.agent.unix_ms(0.0));
             bus.publish_tile(tile.index, common::grid::encode_tile(&tile));
         }
         if let Some(route) = rig.agent.take_recorded() {
@@ -138,5 +153,30 @@ fn apply(rig: &mut Rig, cmd: Command) {
     };
     if let Err(e) = r {
         tracing::warn!("command refused: {e}");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use common::grid::{Cell, CellState, Lattice, Tile, TileIndex};
+
+    #[test]
+    fn session_stamps_become_unix_seconds_once() {
+        let mut t = Tile::new(TileIndex { tx: 0, ty: 0 }, Lattice::default());
+        t.cells[0] = Cell {
+            state: CellState::Obstacle,
+            stamp_s: 12,
+            ..Cell::UNKNOWN
+        };
+        t.cells[1] = Cell {
+            state: CellState::Traversable,
+            stamp_s: 1_790_000_000,
+            ..Cell::UNKNOWN
+        };
+        stamps_to_unix(&mut t, 1_780_000_000_500);
+        assert_eq!(t.cells[0].stamp_s, 1_780_000_012);
+        assert_eq!(t.cells[1].stamp_s, 1_790_000_000, "already Unix: kept");
+        assert_eq!(t.cells[2], Cell::UNKNOWN, "unknown cells stay never-seen");
     }
 }
