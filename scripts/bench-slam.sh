@@ -27,7 +27,7 @@ have_kiss=0
 "$venv/bin/python" -c "import kiss_icp" 2>/dev/null && have_kiss=1
 
 (cd "$root" && cargo build --release -q -p robot-agent)
-bin="$root/target/release/robot-agent"
+bin="${CARGO_TARGET_DIR:-$root/target}/release/robot-agent"
 
 for r in $(seq 1 "$rounds"); do
     if [ "$have_kiss" = 1 ]; then

@@ -43,7 +43,8 @@ fn read_text(path: &Path) -> Result<String, SequenceError> {
     })
 }
 
-/// The scan files of a sequence folder, sorted by name.
+/// The scan files of a sequence folder in scan order: numerically by file stem (`999.pcd` before
+/// `1000.pcd`, which a plain name sort would put after `100.pcd`), then by name.
 pub fn cloud_files(dir: impl AsRef<Path>) -> Result<Vec<PathBuf>, SequenceError> {
     let d = dir.as_ref().join("clouds");
     let rd = std::fs::read_dir(&d).map_err(|source| SequenceError::Io {
@@ -54,7 +55,10 @@ pub fn cloud_files(dir: impl AsRef<Path>) -> Result<Vec<PathBuf>, SequenceError>
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| p.extension().is_some_and(|e| e == "pcd"))
         .collect();
-    v.sort();
+    v.sort_by_cached_key(|p| {
+        let stem = p.file_stem().and_then(|s| s.to_str()).unwrap_or("");
+        (stem.parse::<u64>().ok(), p.clone())
+    });
     if v.is_empty() {
         return Err(SequenceError::Empty(dir.as_ref().display().to_string()));
     }
@@ -200,6 +204,24 @@ mod tests {
         assert!(q[0].rotation.angle_to(&p.rotation) < 1e-8);
         assert!(parse_poses("1 2 3", "x").is_err());
         assert!(parse_poses("1 2 3 4 5 6 7 8 9 10 11 x", "x").is_err());
+    }
+
+    #[test]
+    fn cloud_files_are_in_numeric_order() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir(dir.path().join("clouds")).unwrap();
+        for n in [1000, 999, 100, 1, 101] {
+            std::fs::write(dir.path().join(format!("clouds/{n:03}.pcd")), "").unwrap();
+        }
+        let names: Vec<String> = cloud_files(dir.path())
+            .unwrap()
+            .iter()
+            .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(
+            names,
+            ["001.pcd", "100.pcd", "101.pcd", "999.pcd", "1000.pcd"]
+        );
     }
 
     #[test]

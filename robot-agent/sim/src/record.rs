@@ -1,8 +1,10 @@
 //! Writes a simulated run as a sequence folder (layout of `sensing::sequence`): `clouds/NNN.pcd`
 //! (sensor frame, swept: per-point `t` relative to the scan stamp), `poses.txt` (truth pose of the
 //! LiDAR frame in the map frame at each scan's stamp = its first column), `stamps.txt`,
-//! `odom.txt`, `nmea.log` (`t_s sentence`), `depth/NNN.pcd` when depth frames are recorded, and
-//! `meta.toml`. An I/O helper for tools and tests, not used by the simulation itself.
+//! `odom.txt`, `nmea.log` (`t_s sentence`), `depth/NNN.pcd` when depth frames are recorded,
+//! `walkers.txt` (truth: `t_s id x_m y_m z_m radius_m height_m` for every walker each time a scan
+//! completes; walkers that wait for the robot fall behind their scripts, so tools scoring
+//! dynamic-point removal need their real positions) and `meta.toml`. An I/O helper for tools and tests, not used by the simulation itself.
 
 use crate::simulation::{Simulation, StepOutput};
 use nalgebra::Isometry3;
@@ -20,6 +22,7 @@ pub struct Recorder {
     stamps: BufWriter<File>,
     odom: BufWriter<File>,
     nmea: BufWriter<File>,
+    walkers: BufWriter<File>,
     collisions: u64,
 }
 
@@ -43,6 +46,7 @@ impl Recorder {
             stamps: create(&dir.join("stamps.txt"))?,
             odom: create(&dir.join("odom.txt"))?,
             nmea: create(&dir.join("nmea.log"))?,
+            walkers: create(&dir.join("walkers.txt"))?,
             collisions: 0,
             dir,
         })
@@ -68,6 +72,19 @@ impl Recorder {
             )?;
             writeln!(self.poses, "{}", sensing::sequence::format_pose(&lidar))?;
             writeln!(self.stamps, "{:.6}", scan.stamp_s)?;
+            for w in sim.walkers() {
+                writeln!(
+                    self.walkers,
+                    "{:.6} {} {:.4} {:.4} {:.4} {:.3} {:.3}",
+                    sim.time_s(),
+                    w.id,
+                    w.x_m,
+                    w.y_m,
+                    w.z_m,
+                    w.radius_m,
+                    w.height_m
+                )?;
+            }
             self.scans += 1;
         }
         if let (true, Some(d)) = (self.record_depth, &out.depth) {
@@ -95,6 +112,7 @@ impl Recorder {
         self.stamps.flush()?;
         self.odom.flush()?;
         self.nmea.flush()?;
+        self.walkers.flush()?;
         let ex = sim.lidar_extrinsic();
         let (r, p, y) = ex.rotation.euler_angles();
         let t = ex.translation.vector;

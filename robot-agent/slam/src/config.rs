@@ -68,6 +68,11 @@ pub struct FilterConfig {
     pub normal_max_dist_m: f64,
     /// Max density, points per cubic metre (0 disables): denser points are thinned at random.
     pub max_density_per_m3: f64,
+    /// A normal is trusted only when its neighbourhood spreads in two directions: second / largest
+    /// PCA variance at least this (a lone lidar ring is a line and its PCA "normal" is noise).
+    pub normal_min_spread: f32,
+    /// ...and is thin: smallest / second PCA variance at most this.
+    pub normal_max_thickness: f32,
 }
 
 impl Default for FilterConfig {
@@ -82,8 +87,10 @@ impl Default for FilterConfig {
             seed: 1,
             voxel_size_m: 0.0,
             normal_knn: 12,
-            normal_max_dist_m: 0.0,
+            normal_max_dist_m: 2.0,
             max_density_per_m3: 10.0,
+            normal_min_spread: 0.05,
+            normal_max_thickness: 0.25,
         }
     }
 }
@@ -141,8 +148,9 @@ impl Default for IcpConfig {
     }
 }
 
-/// Map maintenance. Map normals are the reading's PCA normals (`filters.normal_knn`) taken at
-/// insertion, rotated into the map frame.
+/// Map maintenance. Map normals are PCA fits over the map's own points (methods.md §3 "map
+/// filters: surface normals"), refreshed where new points arrive: the map has seen the ground
+/// from many poses, a single sparse scan only along its rings.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
 pub struct MapConfig {
@@ -156,6 +164,22 @@ pub struct MapConfig {
     pub output_radius_m: f64,
     /// Spatial index of the map.
     pub index: MapIndexKind,
+    /// A scan updates the map once the sensor moved this far since the last update, metres...
+    pub update_min_travel_m: f64,
+    /// ...or turned this much, radians...
+    pub update_min_rotation_rad: f64,
+    /// ...or this much time passed, seconds. Every scan is localised; only these update the map
+    /// (the source robot mapped at 0.65 Hz and localised at 6.5 Hz, methods.md §3).
+    pub update_max_interval_s: f64,
+    /// Map neighbours per surface normal.
+    pub normal_knn: usize,
+    /// Map normal neighbours are searched only this far, metres.
+    pub normal_max_dist_m: f64,
+    /// Planarity test of map normals, as `filters.normal_min_spread` (untrusted normals are zero
+    /// and the point is not used as a plane).
+    pub normal_min_spread: f32,
+    /// As `filters.normal_max_thickness`.
+    pub normal_max_thickness: f32,
 }
 
 /// Spatial index used for the map (both measured; see the crate docs for the numbers).
@@ -177,6 +201,13 @@ impl Default for MapConfig {
             distance_limit_m: 30.0,
             output_radius_m: 20.0,
             index: MapIndexKind::KdTree,
+            update_min_travel_m: 0.5,
+            update_min_rotation_rad: 0.15,
+            update_max_interval_s: 1.5,
+            normal_knn: 12,
+            normal_max_dist_m: 1.5,
+            normal_min_spread: 0.05,
+            normal_max_thickness: 0.25,
         }
     }
 }
@@ -203,6 +234,27 @@ pub struct DynamicConfig {
     pub threshold: f64,
     /// Only map points within this range of the sensor are checked, metres.
     pub max_range_m: f64,
+    /// The update runs on every n-th localised scan, and on every scan that updates the map
+    /// (1: all). Ten looks a second through a place a person left are more than the model needs;
+    /// every second scan halves the cost.
+    pub every_n_scans: usize,
+    /// Weight of the range-image look (ring-structured scans, per-point `ring`): a map point
+    /// whose two bracketing lasers both ended beyond it was seen through at the sensor's
+    /// resolution (0 disables).
+    pub range_image_weight: f64,
+    /// Azimuth bin of that range image, radians (about the sensor's horizontal step).
+    pub range_image_bin_rad: f64,
+    /// Lasers farther apart in elevation than this do not bracket a point, radians.
+    pub range_image_max_gap_rad: f64,
+    /// Lasers of the sensor (rings, `Point::ring` 0..n): lasers that got no return at all in a
+    /// scan still looked through free space (16 for the VLP-16; 0: only rings seen in the scan).
+    pub lasers: usize,
+    /// A laser at least this high in the sensor frame that fired and got no return saw free
+    /// space out to the sensor's range, radians. Steeper ones count as unknown: they may be
+    /// blocked by the robot's own body inside the minimum range, or absorbed by wet ground. The
+    /// default lets shallow downward beams count (a VLP-16 on top of the robot cannot see its
+    /// body below -6 deg), as beams over a drop-off or past the end of the terrain.
+    pub no_return_min_elevation_rad: f64,
 }
 
 impl Default for DynamicConfig {
@@ -217,6 +269,12 @@ impl Default for DynamicConfig {
             prior: 0.5,
             threshold: 0.75,
             max_range_m: 30.0,
+            every_n_scans: 2,
+            range_image_weight: 0.5,
+            range_image_bin_rad: 0.0035,
+            range_image_max_gap_rad: 0.06,
+            lasers: 16,
+            no_return_min_elevation_rad: -0.1,
         }
     }
 }

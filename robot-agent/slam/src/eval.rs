@@ -1,6 +1,8 @@
-//! Trajectory error metrics against ground truth (ATE, per-frame RPE, final drift).
+//! Trajectory error metrics against ground truth (ATE, per-frame RPE, final drift), and the
+//! provenance of map points (where in the world a point was seen) for scoring dynamic-point
+//! removal against known moving objects.
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Point3, Vector3};
 use serde::Serialize;
 
 /// Errors of an estimated trajectory against ground truth.
@@ -58,10 +60,101 @@ pub fn trajectory_errors(est: &[Isometry3<f64>], gt: &[Isometry3<f64>]) -> Traje
     }
 }
 
+/// A vertical cylinder in the world frame: a person's body at one instant.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Cylinder {
+    /// Axis x, metres.
+    pub x_m: f64,
+    /// Axis y, metres.
+    pub y_m: f64,
+    /// Bottom, metres.
+    pub z_min_m: f64,
+    /// Top, metres.
+    pub z_max_m: f64,
+    /// Radius, metres.
+    pub radius_m: f64,
+}
+
+impl Cylinder {
+    /// True when `p` is inside (boundary included).
+    pub fn contains(&self, p: &Vector3<f64>) -> bool {
+        p.z >= self.z_min_m
+            && p.z <= self.z_max_m
+            && (p.x - self.x_m).hypot(p.y - self.y_m) <= self.radius_m
+    }
+}
+
+/// Where map points were in the world when they were seen. A map point carries the stamp of the
+/// scan that inserted it ([`crate::map::Map::stamps`]); taken back into that scan's sensor frame
+/// with the estimated pose and out again with the true one, it lands where the sensor actually
+/// measured it, whatever the SLAM error at that time.
+#[derive(Clone, Debug, Default)]
+pub struct Provenance {
+    stamps: Vec<f64>,
+    /// `gt_k * est_k^-1` per scan.
+    fix: Vec<Isometry3<f64>>,
+}
+
+impl Provenance {
+    /// Scans' stamps (increasing), their estimated poses (map frame) and true poses (world).
+    pub fn new(stamps: &[f64], est: &[Isometry3<f64>], gt: &[Isometry3<f64>]) -> Self {
+        let mut p = Self::default();
+        for ((t, e), g) in stamps.iter().zip(est).zip(gt) {
+            p.push(*t, e, g);
+        }
+        p
+    }
+
+    /// Adds the next scan (stamps must increase).
+    pub fn push(&mut self, stamp_s: f64, est: &Isometry3<f64>, gt: &Isometry3<f64>) {
+        self.stamps.push(stamp_s);
+        self.fix.push(gt * est.inverse());
+    }
+
+    /// Index of the scan stamped `t_s`, if it is one of the known scans.
+    pub fn scan_of(&self, t_s: f64) -> Option<usize> {
+        let i = self.stamps.partition_point(|s| *s < t_s - 1e-9);
+        (i < self.stamps.len() && (self.stamps[i] - t_s).abs() <= 1e-9).then_some(i)
+    }
+
+    /// World position of the map point `p` inserted by the scan stamped `t_s`.
+    pub fn world(&self, p: &[f32; 3], t_s: f64) -> Option<Vector3<f64>> {
+        let k = self.scan_of(t_s)?;
+        let q = Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+        Some((self.fix[k] * q).coords)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use nalgebra::{Translation3, UnitQuaternion};
+
+    #[test]
+    fn provenance_undoes_the_pose_error_of_the_inserting_scan() {
+        let stamps = [0.0, 0.1, 0.2];
+        let gt: Vec<_> = (0..3)
+            .map(|i| Isometry3::translation(i as f64, 0.0, 0.0))
+            .collect();
+        // The estimate of scan 2 is 0.5 m off in y: its map points are too.
+        let mut est = gt.clone();
+        est[2] = Isometry3::translation(2.0, 0.5, 0.0);
+        let prov = Provenance::new(&stamps, &est, &gt);
+        let seen_at = Vector3::new(2.0, 1.0, 0.0);
+        let in_map = est[2] * gt[2].inverse() * Point3::from(seen_at);
+        let p = [in_map.x as f32, in_map.y as f32, in_map.z as f32];
+        let w = prov.world(&p, 0.2).expect("known scan");
+        assert!((w - seen_at).norm() < 1e-6, "{w}");
+        assert!(prov.world(&p, 0.15).is_none());
+        let c = Cylinder {
+            x_m: 2.0,
+            y_m: 1.0,
+            z_min_m: -0.5,
+            z_max_m: 0.5,
+            radius_m: 0.1,
+        };
+        assert!(c.contains(&w) && !c.contains(&(w + Vector3::new(0.0, 0.2, 0.0))));
+    }
 
     #[test]
     fn perfect_and_offset_trajectories() {

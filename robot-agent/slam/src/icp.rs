@@ -95,10 +95,13 @@ pub fn register(
             let pt = (tf * Point3::from(*p)).coords;
             let nr = tf.rotation * Vector3::from(*n);
             index.knn_within(&pt.into(), k, max_d, &mut nb);
+            // A zero normal is an untrusted one (not a surface): such a target is skipped, such a
+            // reading point is matched without the normal-angle test.
+            let test_angle = nr != Vector3::zeros();
             for (j, _) in &nb {
                 let j = *j as usize;
                 let nq = Vector3::from(target.normals[j]);
-                if nr.dot(&nq) < cos_max {
+                if nq == Vector3::zeros() || (test_angle && nr.dot(&nq) < cos_max) {
                     continue;
                 }
                 let e = (pt - Vector3::from(target.points[j])).dot(&nq);

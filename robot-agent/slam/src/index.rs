@@ -57,6 +57,15 @@ impl KdIndex {
             }
             return;
         }
+        if !r2.is_finite() || r2 >= 1e20 {
+            // Unbounded: the plain k-NN query skips the distance-threshold collection.
+            let res = tree
+                .query(q)
+                .nearest_n::<SquaredEuclidean<f32>>(k)
+                .execute();
+            out.extend(res.into_iter().map(|r| (r.item, r.distance)));
+            return;
+        }
         let res = tree
             .query(q)
             .nearest_n::<SquaredEuclidean<f32>>(k)

@@ -8,7 +8,7 @@
 //! - [`icp`]: point-to-plane Gauss-Newton on SE(3) with Cauchy weights and checkers.
 //! - [`map`]: the point map, its spatial index and the dynamic-point ray model.
 //! - [`pipeline`]: the per-scan step ([`Slam::process`]).
-//! - [`eval`]: ATE / RPE / drift against ground truth.
+//! - [`eval`]: ATE / RPE / drift against ground truth, map-point provenance.
 #![deny(missing_docs)]
 
 pub mod config;
@@ -21,5 +21,5 @@ pub mod pipeline;
 pub mod se3;
 
 pub use config::Config;
-pub use eval::{trajectory_errors, TrajectoryErrors};
+pub use eval::{trajectory_errors, Cylinder, Provenance, TrajectoryErrors};
 pub use pipeline::{register_pair, Diagnostics, PriorKind, Slam, SlamError, SlamOutput};

@@ -3,9 +3,9 @@
 //! sensor, and the ray-model dynamic-point update (methods.md §3).
 
 use crate::config::{DynamicConfig, MapConfig, MapIndexKind};
-use crate::filters::OrientedCloud;
+use crate::filters::{pca_fit, OrientedCloud};
 use crate::index::{KdIndex, Neighbours, VoxelIndex};
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Vector3};
 use sensing::Point;
 
 #[derive(Debug)]
@@ -13,6 +13,9 @@ enum Index {
     Kd(KdIndex),
     Voxel(VoxelIndex),
 }
+
+/// A map point closer than this to its neighbourhood's plane is on it, whatever the spread.
+const PLANE_FIT_MIN_M: f32 = 0.03;
 
 /// What one map update did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
@@ -32,7 +35,13 @@ pub struct MapUpdateStats {
 pub struct Map {
     cloud: OrientedCloud,
     p_dynamic: Vec<f32>,
+    /// Stamp of the scan that inserted each point.
+    stamps: Vec<f64>,
     index: Index,
+    /// Index item -> current point, after removals since the index was built (`u32::MAX`:
+    /// removed); `None` while the index matches the points one to one. Removing a handful of
+    /// dynamic points must not cost a rebuild on every scan.
+    index_map: Option<Vec<u32>>,
     kind: MapIndexKind,
     voxel_size_m: f32,
 }
@@ -47,7 +56,9 @@ impl Map {
         Self {
             cloud: OrientedCloud::default(),
             p_dynamic: Vec::new(),
+            stamps: Vec::new(),
             index,
+            index_map: None,
             kind,
             voxel_size_m,
         }
@@ -73,7 +84,14 @@ impl Map {
         &self.p_dynamic
     }
 
+    /// Stamp of the scan that inserted each point, same order as [`Map::cloud`] (where a point
+    /// came from: evaluation tools trace map points back to the scan, and so to the world).
+    pub fn stamps(&self) -> &[f64] {
+        &self.stamps
+    }
+
     fn rebuild(&mut self) {
+        self.index_map = None;
         self.index = match self.kind {
             MapIndexKind::KdTree => Index::Kd(KdIndex::build(&self.cloud.points)),
             MapIndexKind::Voxel => {
@@ -82,14 +100,15 @@ impl Map {
         };
     }
 
-    /// One update after a scan is localised: P(dynamic) from the unfiltered scan (`raw_sensor`,
-    /// sensor frame), removal of dynamic and far points, insertion of new reading points
-    /// (`reading_map`, map frame) farther than `min_dist_new_point_m` from the map.
+    /// One update after the scan stamped `stamp_s` is localised: P(dynamic) from the unfiltered
+    /// scan (`raw_sensor`, sensor frame), removal of dynamic and far points, insertion of new
+    /// reading points (`reading_map`, map frame) farther than `min_dist_new_point_m` from the map.
     pub fn update(
         &mut self,
         reading_map: &OrientedCloud,
         raw_sensor: &[Point],
         map_from_sensor: &Isometry3<f64>,
+        stamp_s: f64,
         cfg: &MapConfig,
         dyn_cfg: &DynamicConfig,
     ) -> MapUpdateStats {
@@ -103,9 +122,89 @@ impl Map {
                 dyn_cfg,
             );
         }
+        self.insert_and_limit(
+            reading_map,
+            map_from_sensor,
+            stamp_s,
+            cfg,
+            dyn_cfg,
+            &mut stats,
+        );
+        stats
+    }
+
+    /// The dynamic-point update alone, for scans that localise but do not update the map: every
+    /// scan is a look through the places people may have left. Points that turn dynamic are
+    /// removed at once.
+    pub fn observe(
+        &mut self,
+        raw_sensor: &[Point],
+        map_from_sensor: &Isometry3<f64>,
+        dyn_cfg: &DynamicConfig,
+    ) -> MapUpdateStats {
+        let mut stats = MapUpdateStats::default();
+        if !dyn_cfg.enabled || self.is_empty() {
+            return stats;
+        }
+        stats.observed = update_dynamic(
+            &self.cloud,
+            &mut self.p_dynamic,
+            raw_sensor,
+            map_from_sensor,
+            dyn_cfg,
+        );
+        let thr = dyn_cfg.threshold as f32;
+        if self.p_dynamic.iter().any(|pd| *pd > thr) {
+            let keep: Vec<bool> = self.p_dynamic.iter().map(|pd| *pd <= thr).collect();
+            stats.removed_dynamic = self.retain(&keep);
+        }
+        stats
+    }
+
+    /// Keeps the points whose `keep` is true (order preserved) and remaps the index onto them;
+    /// returns how many went.
+    fn retain(&mut self, keep: &[bool]) -> usize {
+        let before = self.len();
+        let mut new_pos = vec![u32::MAX; before];
+        let mut j = 0;
+        for i in 0..before {
+            if keep[i] {
+                self.cloud.points[j] = self.cloud.points[i];
+                self.cloud.normals[j] = self.cloud.normals[i];
+                self.p_dynamic[j] = self.p_dynamic[i];
+                self.stamps[j] = self.stamps[i];
+                new_pos[i] = j as u32;
+                j += 1;
+            }
+        }
+        self.cloud.points.truncate(j);
+        self.cloud.normals.truncate(j);
+        self.p_dynamic.truncate(j);
+        self.stamps.truncate(j);
+        self.index_map = Some(match self.index_map.take() {
+            None => new_pos,
+            Some(m) => m
+                .into_iter()
+                .map(|p| new_pos.get(p as usize).copied().unwrap_or(u32::MAX))
+                .collect(),
+        });
+        before - j
+    }
+
+    /// Insertion of new reading points, removal of dynamic and far points, index and normals.
+    fn insert_and_limit(
+        &mut self,
+        reading_map: &OrientedCloud,
+        map_from_sensor: &Isometry3<f64>,
+        stamp_s: f64,
+        cfg: &MapConfig,
+        dyn_cfg: &DynamicConfig,
+        stats: &mut MapUpdateStats,
+    ) {
         let sensor = map_from_sensor.translation.vector.cast::<f32>();
         let max_new = cfg.sensor_max_range_m as f32;
         let min_d2 = (cfg.min_dist_new_point_m * cfg.min_dist_new_point_m) as f32;
+        let thr = dyn_cfg.threshold as f32;
         let mut nb = Vec::with_capacity(1);
         let mut new_idx = Vec::new();
         for (i, p) in reading_map.points.iter().enumerate() {
@@ -113,23 +212,29 @@ impl Map {
                 continue;
             }
             self.knn(p, 1, f32::MAX.sqrt() / 2.0, &mut nb);
-            if nb.first().is_none_or(|(_, d2)| *d2 > min_d2) {
+            // A neighbour about to be removed as dynamic does not count: the surface behind a
+            // person who walked away must be able to fill in.
+            if nb
+                .first()
+                .is_none_or(|(j, d2)| *d2 > min_d2 || self.p_dynamic[*j as usize] > thr)
+            {
                 new_idx.push(i);
             }
         }
         let limit2 = (cfg.distance_limit_m * cfg.distance_limit_m) as f32;
-        let thr = dyn_cfg.threshold as f32;
         let mut kept = OrientedCloud {
             points: Vec::with_capacity(self.len() + new_idx.len()),
             normals: Vec::with_capacity(self.len() + new_idx.len()),
         };
         let mut kept_p = Vec::with_capacity(self.len() + new_idx.len());
-        for ((p, n), pd) in self
+        let mut kept_t = Vec::with_capacity(self.len() + new_idx.len());
+        for (((p, n), pd), t) in self
             .cloud
             .points
             .iter()
             .zip(&self.cloud.normals)
             .zip(&self.p_dynamic)
+            .zip(&self.stamps)
         {
             if *pd > thr {
                 stats.removed_dynamic += 1;
@@ -139,18 +244,80 @@ impl Map {
                 kept.points.push(*p);
                 kept.normals.push(*n);
                 kept_p.push(*pd);
+                kept_t.push(*t);
             }
         }
+        let first_new = kept.len();
         for i in new_idx {
             kept.points.push(reading_map.points[i]);
-            kept.normals.push(reading_map.normals[i]);
+            kept.normals.push([0.0; 3]);
             kept_p.push(dyn_cfg.prior as f32);
+            kept_t.push(stamp_s);
             stats.added += 1;
         }
         self.cloud = kept;
         self.p_dynamic = kept_p;
+        self.stamps = kept_t;
         self.rebuild();
-        stats
+        self.refresh_normals(first_new, &sensor, cfg);
+    }
+
+    /// PCA normals of the points from `first_new` on and of the untrusted (zero) normals among
+    /// their neighbours. Non-planar neighbourhoods, and points off their neighbourhood's plane,
+    /// get a zero normal. New normals face the sensor; refreshed ones keep the side they had.
+    fn refresh_normals(&mut self, first_new: usize, sensor: &Vector3<f32>, cfg: &MapConfig) {
+        let n = self.len();
+        if first_new >= n {
+            return;
+        }
+        let k = cfg.normal_knn.max(3);
+        let r = cfg.normal_max_dist_m as f32;
+        let mut nb = Vec::with_capacity(k);
+        let mut dirty = vec![false; n];
+        let mut list: Vec<u32> = Vec::new();
+        for i in first_new..n {
+            self.knn(&self.cloud.points[i], k, r, &mut nb);
+            // A trusted normal stays (its neighbourhood was already a good plane); untrusted
+            // ones get another chance as the map fills in around them.
+            for (j, _) in &nb {
+                let ju = *j as usize;
+                let stale = ju >= first_new || self.cloud.normals[ju] == [0.0; 3];
+                if stale && !std::mem::replace(&mut dirty[ju], true) {
+                    list.push(*j);
+                }
+            }
+            if !std::mem::replace(&mut dirty[i], true) {
+                list.push(i as u32);
+            }
+        }
+        let fresh: Vec<[f32; 3]> = list
+            .iter()
+            .map(|&i| {
+                let p = self.cloud.points[i as usize];
+                self.knn(&p, k, r, &mut nb);
+                let Some(fit) = pca_fit(&self.cloud.points, &nb).filter(|f| {
+                    f.is_planar(cfg.normal_min_spread, cfg.normal_max_thickness)
+                        && f.fits(&Vector3::from(p), PLANE_FIT_MIN_M)
+                }) else {
+                    return [0.0; 3];
+                };
+                let old = Vector3::from(self.cloud.normals[i as usize]);
+                let side = if old != Vector3::zeros() {
+                    old
+                } else {
+                    sensor - Vector3::from(p)
+                };
+                let nrm = if fit.normal.dot(&side) < 0.0 {
+                    -fit.normal
+                } else {
+                    fit.normal
+                };
+                nrm.into()
+            })
+            .collect();
+        for (i, nrm) in list.into_iter().zip(fresh) {
+            self.cloud.normals[i as usize] = nrm;
+        }
     }
 
     /// Map points within `radius_m` of `center_m` as plain points (map frame).
@@ -182,37 +349,41 @@ impl Map {
                 v.knn_within(q, k, max_dist_m.min(self.voxel_size_m), out)
             }
         }
+        if let Some(m) = &self.index_map {
+            out.retain_mut(|(i, _)| {
+                *i = m[*i as usize];
+                *i != u32::MAX
+            });
+        }
     }
 }
 
 /// atan2 to ~1e-5 rad (a bin index only needs to be consistent; the beam angle itself is
-/// computed exactly), several times cheaper than libm's on 100k points a scan.
+/// computed exactly), several times cheaper than libm's on 100k points a scan. Branch-free, so
+/// loops over whole scans vectorise.
 fn fast_atan2(y: f32, x: f32) -> f32 {
     use std::f32::consts::{FRAC_PI_2, PI};
     let (ax, ay) = (x.abs(), y.abs());
-    let (mn, mx) = if ax < ay { (ax, ay) } else { (ay, ax) };
-    if mx == 0.0 {
-        return 0.0;
-    }
-    let a = mn / mx;
+    let (mn, mx) = (ax.min(ay), ax.max(ay));
+    let a = if mx > 0.0 { mn / mx } else { 0.0 };
     let s = a * a;
     // Minimax polynomial for atan on [0, 1].
-    let mut r = a
+    let r = a
         * (0.999_977_26
             + s * (-0.332_623_47
                 + s * (0.193_543_46
                     + s * (-0.116_432_87 + s * (0.052_653_32 + s * -0.011_721_2)))));
-    if ay > ax {
-        r = FRAC_PI_2 - r;
-    }
-    if x < 0.0 {
-        r = PI - r;
-    }
-    if y < 0.0 {
-        -r
-    } else {
-        r
-    }
+    let r = if ay > ax { FRAC_PI_2 - r } else { r };
+    let r = if x < 0.0 { PI - r } else { r };
+    r.copysign(y)
+}
+
+/// Azimuth in `[0, 2 pi)` and elevation in `[0, pi]` (both shifted to be non-negative) of a
+/// direction, with [`fast_atan2`].
+fn angles(p: &Vector3<f32>) -> (f32, f32) {
+    let az = fast_atan2(p.y, p.x) + std::f32::consts::PI;
+    let el = fast_atan2(p.z, (p.x * p.x + p.y * p.y).sqrt()) + std::f32::consts::FRAC_PI_2;
+    (az, el)
 }
 
 /// Direction bins of a scan (a sparse range image) for beam look-ups, built by counting sort
@@ -228,18 +399,26 @@ struct BeamBins {
 }
 
 impl BeamBins {
-    fn bin(inv_bin: f32, n_az: u32, p: &Vector3<f32>) -> (u32, u32) {
-        let az = fast_atan2(p.y, p.x) + std::f32::consts::PI;
-        let el = fast_atan2(p.z, (p.x * p.x + p.y * p.y).sqrt()) + std::f32::consts::FRAC_PI_2;
-        let a = ((az * inv_bin) as u32).min(n_az - 1);
-        let e = (el * inv_bin) as u32;
-        (a, e)
+    fn cell(&self, az: f32, el: f32) -> (u32, u32) {
+        (
+            ((az * self.inv_bin) as u32).min(self.n_az - 1),
+            (el * self.inv_bin) as u32,
+        )
     }
 
-    fn new(points: &[Vector3<f32>], bin_rad: f32) -> Self {
+    /// Bins the directions `dirs` (from [`angles`]).
+    fn new(dirs: &[(f32, f32)], bin_rad: f32) -> Self {
         let inv_bin = 1.0 / bin_rad;
         let n_az = (std::f32::consts::TAU * inv_bin).ceil() as u32;
-        let bins: Vec<(u32, u32)> = points.iter().map(|p| Self::bin(inv_bin, n_az, p)).collect();
+        let mut me = BeamBins {
+            start: Vec::new(),
+            order: vec![0u32; dirs.len()],
+            n_az,
+            row0: 0,
+            n_rows: 1,
+            inv_bin,
+        };
+        let bins: Vec<(u32, u32)> = dirs.iter().map(|(a, e)| me.cell(*a, *e)).collect();
         let row0 = bins.iter().map(|b| b.1).min().unwrap_or(0);
         let row1 = bins.iter().map(|b| b.1).max().unwrap_or(0);
         let n_rows = row1 - row0 + 1;
@@ -252,25 +431,20 @@ impl BeamBins {
             start[c + 1] += start[c];
         }
         let mut fill = start.clone();
-        let mut order = vec![0u32; points.len()];
         for (i, (a, e)) in bins.iter().enumerate() {
             let c = ((e - row0) * n_az + a) as usize;
-            order[fill[c] as usize] = i as u32;
+            me.order[fill[c] as usize] = i as u32;
             fill[c] += 1;
         }
-        BeamBins {
-            start,
-            order,
-            n_az,
-            row0,
-            n_rows,
-            inv_bin,
-        }
+        me.start = start;
+        me.row0 = row0;
+        me.n_rows = n_rows;
+        me
     }
 
-    /// Calls `f` with the indices of points in the 3x3 bins around `q`'s direction.
-    fn for_each_near(&self, q: &Vector3<f32>, mut f: impl FnMut(usize)) {
-        let (a, e) = Self::bin(self.inv_bin, self.n_az, q);
+    /// Calls `f` with the indices of points in the 3x3 bins around the direction `(az, el)`.
+    fn for_each_near(&self, az: f32, el: f32, mut f: impl FnMut(usize)) {
+        let (a, e) = self.cell(az, el);
         for de in [-1i64, 0, 1] {
             let row = i64::from(e) + de - i64::from(self.row0);
             if row < 0 || row >= i64::from(self.n_rows) {
@@ -287,15 +461,179 @@ impl BeamBins {
     }
 }
 
+/// A coarse range image of a ring-structured scan (`Point::ring` set): per laser its elevation
+/// and the nearest return per azimuth bin. Lasers that fired upward and got nothing back saw free
+/// space to the sensor's range; downward ones with no return are unknown (absorbed, or blocked
+/// by the robot itself within the minimum range).
+struct RangeImage {
+    /// Lasers by ascending elevation (shifted as in [`angles`]).
+    els: Vec<f32>,
+    /// Per laser (same order), range per azimuth bin; INFINITY = free, NAN = unknown.
+    rows: Vec<Vec<f32>>,
+    n_az: u32,
+    inv_bin: f32,
+}
+
+impl RangeImage {
+    /// `None` when the scan carries no usable ring structure (a single ring, or rings whose
+    /// points do not share an elevation, e.g. a merged or re-projected cloud).
+    fn new(
+        rings_of: &[u16],
+        dirs: &[(f32, f32)],
+        ranges: &[f32],
+        bin_rad: f32,
+        free_min_el: f32,
+        n_lasers: usize,
+    ) -> Option<Self> {
+        let n_rings = usize::from(*rings_of.iter().max()?) + 1;
+        if !(2..=256).contains(&n_rings) {
+            return None;
+        }
+        let inv_bin = 1.0 / bin_rad;
+        let n_az = (std::f32::consts::TAU * inv_bin).ceil() as u32;
+        let mut els: Vec<Vec<f32>> = vec![Vec::new(); n_rings];
+        let mut img = vec![vec![f32::NAN; n_az as usize]; n_rings];
+        for ((r, (az, el)), range) in rings_of.iter().zip(dirs).zip(ranges) {
+            let a = ((az * inv_bin) as u32).min(n_az - 1);
+            let cell = &mut img[usize::from(*r)][a as usize];
+            // NAN (no return yet) or farther: this return is the nearest so far.
+            if cell.is_nan() || *range < *cell {
+                *cell = *range;
+            }
+            els[usize::from(*r)].push(*el);
+        }
+        let free_min = free_min_el + std::f32::consts::FRAC_PI_2;
+        // Elevation per ring from its returns (median).
+        let mut ring_el: Vec<Option<f32>> = Vec::with_capacity(n_rings.max(n_lasers));
+        for mut e in els {
+            if e.len() < 3 {
+                ring_el.push(None);
+                continue;
+            }
+            let mid = e.len() / 2;
+            let (_, med, _) = e.select_nth_unstable_by(mid, f32::total_cmp);
+            let med = *med;
+            // A laser's returns share one elevation (up to de-skewing and range noise near the
+            // sensor); if most do not, this is no ring.
+            let off = e.iter().filter(|x| (**x - med).abs() > 0.02).count();
+            if off * 4 > e.len() {
+                return None;
+            }
+            ring_el.push(Some(med));
+        }
+        // A laser that got no return at all (pointing at the sky) still fired: when the known
+        // rings lie on one line (evenly spaced lasers, as a VLP-16's), place the silent ones on
+        // it, up to the sensor's `n_lasers`.
+        ring_el.resize(n_lasers.max(ring_el.len()), None);
+        let known: Vec<(f32, f32)> = ring_el
+            .iter()
+            .enumerate()
+            .filter_map(|(i, e)| e.map(|e| (i as f32, e)))
+            .collect();
+        if known.len() >= 4 && known.len() < ring_el.len() {
+            let n = known.len() as f32;
+            let (sx, sy) = known
+                .iter()
+                .fold((0.0, 0.0), |(a, b), (x, y)| (a + x, b + y));
+            let (mx, my) = (sx / n, sy / n);
+            let sxx: f32 = known.iter().map(|(x, _)| (x - mx) * (x - mx)).sum();
+            let sxy: f32 = known.iter().map(|(x, y)| (x - mx) * (y - my)).sum();
+            let slope = sxy / sxx.max(1e-9);
+            let line = |x: f32| my + slope * (x - mx);
+            if known.iter().all(|(x, y)| (line(*x) - y).abs() < 0.005) {
+                for (i, e) in ring_el.iter_mut().enumerate() {
+                    e.get_or_insert(line(i as f32));
+                }
+            }
+        }
+        img.resize(ring_el.len(), vec![f32::NAN; n_az as usize]);
+        let mut rings: Vec<(f32, Vec<f32>)> = Vec::with_capacity(ring_el.len());
+        for (e, mut row) in ring_el.into_iter().zip(img) {
+            let Some(med) = e else { continue };
+            if med >= free_min {
+                row.iter_mut()
+                    .filter(|c| c.is_nan())
+                    .for_each(|c| *c = f32::INFINITY);
+            }
+            rings.push((med, row));
+        }
+        if rings.len() < 2 {
+            return None;
+        }
+        rings.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let (els, rows) = rings.into_iter().unzip();
+        Some(Self {
+            els,
+            rows,
+            n_az,
+            inv_bin,
+        })
+    }
+
+    /// Angular distance in elevation from `el` to the nearest laser.
+    fn ring_distance(&self, el: f32) -> f32 {
+        let i = self.els.partition_point(|e| *e <= el);
+        let below = i.checked_sub(1).map_or(f32::INFINITY, |j| el - self.els[j]);
+        let above = self.els.get(i).map_or(f32::INFINITY, |e| e - el);
+        below.min(above)
+    }
+
+    /// The lasers just below and above the direction `(az, el)`, if it lies between two of them
+    /// no more than `max_gap_rad` apart: for each, its angular distance from `q` in elevation and
+    /// its nearest return within one azimuth bin of `q` (NAN: none known).
+    fn bracket(&self, az: f32, el: f32, max_gap_rad: f32) -> Option<[(f32, f32); 2]> {
+        let i = self.els.partition_point(|e| *e <= el);
+        if i == 0 || i == self.els.len() {
+            return None;
+        }
+        let (lo, hi) = (self.els[i - 1], self.els[i]);
+        if hi - lo > max_gap_rad {
+            return None;
+        }
+        let a = ((az * self.inv_bin) as u32).min(self.n_az - 1);
+        // Bins without a return of a downward laser say nothing (the laser may simply not have
+        // fired into that bin); the nearest known return decides.
+        let near = |row: &[f32]| {
+            [self.n_az - 1, 0, 1]
+                .iter()
+                .map(|d| row[((a + d) % self.n_az) as usize])
+                .filter(|r| !r.is_nan())
+                .fold(f32::NAN, f32::min)
+        };
+        Some([
+            (el - lo, near(&self.rows[i - 1])),
+            (hi - el, near(&self.rows[i])),
+        ])
+    }
+}
+
 /// Bayes update of P(dynamic) for map points seen along a beam of the new scan. Returns how many
 /// points were updated.
 ///
-/// Two deliberate readings of methods.md's formulas: the beam weight is `1 - theta/theta_max`
-/// (evidence is strongest on the beam axis; `theta/theta_max` taken literally would ignore points
-/// exactly on a beam), and the static likelihood falls with how far the beam went *past* q beyond
-/// the noise band `eps_d + |p| eps_a`: `P(delta|dynamic) = clamp(delta - band, 0, 1)` (taken
-/// literally, `P(delta|static)` could never exceed the band, ~0.1, and every seen point would
-/// turn dynamic).
+/// For each map point q the scan's beam closest in direction decides, if it passes within
+/// `theta_max`: it ended near q (q is there: static evidence), in front of q (no evidence), or
+/// beyond q (it went through where q was: dynamic evidence). How methods.md's formulas are read:
+///
+/// - `P(U) = (1 - theta/theta_max)(1 - 2 phi/pi)` is the chance the observation is usable
+///   (strongest on the beam axis, weakest at grazing incidence); an unusable observation teaches
+///   nothing, so the belief is a `P(U)`-weighted blend of the Bayes posterior and the old value.
+///   Applying the transition matrix on every unusable look would drift every point toward its
+///   fixed point `(1 - alpha)/(2 - alpha - beta)` = 2/3, next to the 0.75 threshold.
+/// - "Beyond q" needs the beam to end farther than the noise band `eps_d + |q| eps_a` plus the
+///   spread a surface at incidence `phi` allows a beam `theta` off q, `|q| tan(theta) tan(phi)`:
+///   ground seen at grazing angles is otherwise "passed through" by every beam just above it.
+///   With that spread modelled, the incidence weight is floored (a person's trail of points, a
+///   vertical sheet along their path, looks like a wall seen edge-on). The dynamic likelihood
+///   ramps from 0.1 at the band to 0.9 one band farther. A return of a neighbouring beam right at
+///   q is static evidence whatever the nearest beam did (the beam beside a pole's edge misses the
+///   pole, the next one hits it).
+///
+/// A 16-laser sensor puts a beam within `theta_max` of few map points, and the parts of a person
+/// at sensor height may never be looked at again that way. Ring-structured scans therefore add
+/// coarser looks from a range image: a laser that fired toward q and got no return went through
+/// it (within `theta_max`, or a few times that for points without a trusted surface, which
+/// people's are); otherwise, when both lasers bracketing q's direction ended beyond q, the sensor
+/// saw through q's place at its own resolution (weight `dynamic.range_image_weight`).
 fn update_dynamic(
     map: &OrientedCloud,
     p_dynamic: &mut [f32],
@@ -303,21 +641,48 @@ fn update_dynamic(
     map_from_sensor: &Isometry3<f64>,
     cfg: &DynamicConfig,
 ) -> usize {
-    let scan: Vec<Vector3<f32>> = raw_sensor
-        .iter()
-        .filter(|p| p.is_finite() && p.range_m() > 0.0)
-        .map(|p| Vector3::new(p.x, p.y, p.z))
-        .collect();
+    // Weight and tan(phi) of an unknown surface, the grazing limits, the reach of free lasers
+    // for points without a trusted surface.
+    const W_UNKNOWN: f32 = 0.8;
+    const TAN_UNKNOWN: f32 = 1.0;
+    const TAN_MAX: f32 = 20.0;
+    const W_GRAZING_MIN: f32 = 0.25;
+    const UNKNOWN_FREE_REACH: f32 = 3.0;
+    let mut scan: Vec<Vector3<f32>> = Vec::with_capacity(raw_sensor.len());
+    let mut rings_of: Vec<u16> = Vec::with_capacity(raw_sensor.len());
+    for p in raw_sensor {
+        if p.is_finite() && p.range_m() > 0.0 {
+            scan.push(Vector3::new(p.x, p.y, p.z));
+            rings_of.push(p.ring);
+        }
+    }
     if scan.is_empty() {
         return 0;
     }
     let ranges: Vec<f32> = scan.iter().map(|p| p.norm()).collect();
+    let dirs: Vec<(f32, f32)> = scan.iter().map(angles).collect();
     let theta_max = cfg.beam_half_angle_rad as f32;
-    let bins = BeamBins::new(&scan, theta_max);
+    let bins = BeamBins::new(&dirs, theta_max);
+    let image = if cfg.range_image_weight > 0.0 {
+        RangeImage::new(
+            &rings_of,
+            &dirs,
+            &ranges,
+            cfg.range_image_bin_rad as f32,
+            cfg.no_return_min_elevation_rad as f32,
+            cfg.lasers,
+        )
+    } else {
+        None
+    };
+    let image_w = cfg.range_image_weight as f32;
+    let max_gap = cfg.range_image_max_gap_rad as f32;
     let sensor_from_map = map_from_sensor.inverse().cast::<f32>();
-    let sensor_m = map_from_sensor.translation.vector.cast::<f32>();
+    let rot = sensor_from_map.rotation.to_rotation_matrix().into_inner();
+    let tr = sensor_from_map.translation.vector;
     let max_r2 = (cfg.max_range_m * cfg.max_range_m) as f32;
     let (alpha, beta) = (cfg.alpha as f32, cfg.beta as f32);
+    let (eps_d, eps_a) = (cfg.eps_d_m as f32, cfg.eps_a as f32);
     let mut updated = 0;
     for ((q_map, n_map), pd) in map
         .points
@@ -325,40 +690,105 @@ fn update_dynamic(
         .zip(&map.normals)
         .zip(p_dynamic.iter_mut())
     {
-        if (Vector3::from(*q_map) - sensor_m).norm_squared() > max_r2 {
+        let q = rot * Vector3::from(*q_map) + tr;
+        let q_r2 = q.norm_squared();
+        if q_r2 > max_r2 || q_r2 < 1e-6 {
             continue;
         }
-        let q = (sensor_from_map * Point3::from(*q_map)).coords;
-        let q_r = q.norm();
-        if q_r < 1e-3 {
-            continue;
-        }
-        // The reading point whose beam passes closest to q (largest cosine; theta is small, so
-        // sin(theta) = |p x q| / (|p| |q|) stands in for it).
+        let q_r = q_r2.sqrt();
+        let (az, el) = angles(&q);
+        // With a ring structure, no beam can pass within theta_max of q unless a laser does.
+        let near_ring = image
+            .as_ref()
+            .is_none_or(|im| im.ring_distance(el) < 2.0 * theta_max);
         let q_unit = q / q_r;
+        let band = eps_d + q_r * eps_a;
+        // The reading point whose beam passes closest to q (largest cosine; theta is small, so
+        // theta = sin(theta) = |p x q| / (|p| |q|)), and the return nearest to q.
         let mut best: Option<(f32, usize)> = None;
-        bins.for_each_near(&q, |i| {
-            let cos = scan[i].dot(&q_unit) / ranges[i];
-            if best.is_none_or(|(c, _)| cos > c) {
-                best = Some((cos, i));
-            }
-        });
-        let Some((_, i)) = best else { continue };
-        let theta = (scan[i].cross(&q_unit).norm() / ranges[i]).min(1.0).asin();
-        if theta >= theta_max {
-            continue;
+        let mut d2_min = f32::INFINITY;
+        if near_ring {
+            bins.for_each_near(az, el, |i| {
+                let cos = scan[i].dot(&q_unit) / ranges[i];
+                if best.is_none_or(|(c, _)| cos > c) {
+                    best = Some((cos, i));
+                }
+                d2_min = d2_min.min((scan[i] - q).norm_squared());
+            });
         }
-        let p_r = ranges[i];
-        if p_r < q_r {
+        let seen = d2_min <= band * band;
+        let fine = best.and_then(|(_, i)| {
+            let theta = (scan[i].cross(&q_unit).norm() / ranges[i]).min(1.0);
+            (theta < theta_max).then_some((theta, ranges[i]))
+        });
+        let bracket = if seen || fine.is_some() {
+            None
+        } else {
+            let Some(b) = image.as_ref().and_then(|im| im.bracket(az, el, max_gap)) else {
+                continue;
+            };
+            // Cheap reject before any trigonometry: neither laser ended beyond q's noise band
+            // and neither is a free one close enough to count.
+            let free_near = b
+                .iter()
+                .any(|(de, r)| *r == f32::INFINITY && *de < UNKNOWN_FREE_REACH * theta_max);
+            let nearer = b[0].1.min(b[1].1);
+            if !free_near && (nearer.is_nan() || nearer <= q_r + band) {
+                continue;
+            }
+            Some(b)
+        };
+        if !seen && fine.is_some_and(|(_, p_r)| p_r < q_r) {
             // Something in front of q: the beam never reached it, no evidence either way.
             continue;
         }
-        let n = sensor_from_map.rotation * Vector3::from(*n_map);
-        let incidence = (n.dot(&q) / q_r).abs().min(1.0).acos();
-        let usable = (1.0 - theta / theta_max) * (1.0 - 2.0 * incidence / std::f32::consts::PI);
-        let band = cfg.eps_d_m as f32 + p_r * cfg.eps_a as f32;
-        let l_dyn = (p_r - q_r - band).clamp(0.0, 1.0);
-        let l_dyn = usable * l_dyn + (1.0 - usable) * 0.5;
+        let n = rot * Vector3::from(*n_map);
+        let unknown = n == Vector3::zeros();
+        let (incidence_w, tan_phi) = if unknown {
+            // No trusted normal (edges, thin or scattered objects such as people).
+            (W_UNKNOWN, TAN_UNKNOWN)
+        } else {
+            let cos_phi = n.dot(&q_unit).abs().min(1.0);
+            let phi = cos_phi.acos();
+            let tan_phi = (1.0 - cos_phi * cos_phi).sqrt() / cos_phi.max(1e-6);
+            let w = (1.0 - 2.0 * phi / std::f32::consts::PI).max(W_GRAZING_MIN);
+            (w, tan_phi.min(TAN_MAX))
+        };
+        // How far beyond q a beam `theta` off q may end on q's own surface (small angles).
+        let allowed = |theta: f32| band + q_r * theta * tan_phi;
+        // (usable, ramp): how much this look counts, and how strongly it says "dynamic".
+        let look = if seen {
+            Some((incidence_w, 0.0))
+        } else if let Some((theta, p_r)) = fine {
+            let ramp = ((p_r - q_r - allowed(theta)) / band).clamp(0.0, 1.0);
+            Some(((1.0 - theta / theta_max) * incidence_w, ramp))
+        } else if let Some([lo, hi]) = bracket {
+            let reach = if unknown {
+                UNKNOWN_FREE_REACH * theta_max
+            } else {
+                theta_max
+            };
+            let free = [lo, hi]
+                .into_iter()
+                .filter(|(de, r)| *de < reach && *r == f32::INFINITY)
+                .map(|(de, _)| de)
+                .reduce(f32::min);
+            let beyond = |(de, r): (f32, f32)| r - q_r - allowed(de);
+            let excess = beyond(lo).min(beyond(hi));
+            match free {
+                Some(de) => Some(((1.0 - de / reach) * incidence_w, 1.0)),
+                None => {
+                    (excess > 0.0).then(|| (image_w * incidence_w, (excess / band).clamp(0.0, 1.0)))
+                }
+            }
+        } else {
+            None
+        };
+        let Some((usable, ramp)) = look else { continue };
+        if usable <= 0.0 {
+            continue;
+        }
+        let l_dyn = 0.1 + 0.8 * ramp;
         let l_sta = 1.0 - l_dyn;
         let ps = 1.0 - *pd;
         let pd_pred = (1.0 - alpha) * ps + beta * *pd;
@@ -366,7 +796,7 @@ fn update_dynamic(
         let num = pd_pred * l_dyn;
         let den = num + ps_pred * l_sta;
         if den > 0.0 {
-            *pd = num / den;
+            *pd = usable * (num / den) + (1.0 - usable) * *pd;
             updated += 1;
         }
     }
@@ -430,6 +860,7 @@ mod tests {
             &as_cloud(&first),
             &first,
             &Isometry3::identity(),
+            0.0,
             &cfg,
             &dyn_cfg,
         );
@@ -443,6 +874,7 @@ mod tests {
                 &OrientedCloud::default(),
                 &empty,
                 &Isometry3::identity(),
+                1.0,
                 &cfg,
                 &dyn_cfg,
             );
@@ -465,6 +897,7 @@ mod tests {
                 &as_cloud(&s),
                 &s,
                 &Isometry3::identity(),
+                0.0,
                 &MapConfig::default(),
                 &DynamicConfig::default(),
             );
@@ -489,16 +922,164 @@ mod tests {
             points: vec![[1.0, 0.0, 0.0], [1.05, 0.0, 0.0], [1.2, 0.0, 0.0]],
             normals: vec![[1.0, 0.0, 0.0]; 3],
         };
-        let s = map.update(&c, &[], &Isometry3::identity(), &cfg, &dyn_cfg);
+        let s = map.update(&c, &[], &Isometry3::identity(), 0.0, &cfg, &dyn_cfg);
         assert_eq!(s.added, 3, "an empty map takes everything");
         let c2 = OrientedCloud {
             points: vec![[1.03, 0.0, 0.0], [1.5, 0.0, 0.0]],
             normals: vec![[1.0, 0.0, 0.0]; 2],
         };
-        let s = map.update(&c2, &[], &Isometry3::identity(), &cfg, &dyn_cfg);
+        let s = map.update(&c2, &[], &Isometry3::identity(), 1.0, &cfg, &dyn_cfg);
         assert_eq!(s.added, 1);
         let far = Isometry3::translation(20.0, 0.0, 0.0);
-        let s = map.update(&OrientedCloud::default(), &[], &far, &cfg, &dyn_cfg);
+        let s = map.update(&OrientedCloud::default(), &[], &far, 2.0, &cfg, &dyn_cfg);
         assert_eq!((s.removed_far, map.len()), (4, 0));
+    }
+
+    /// A VLP-16-like sweep (16 lasers, 2 deg apart, 1800 columns, sensor 0.75 m above flat
+    /// ground) of a wall at x = 15 m (up to 4 m high), a pole at (5, 3) and, optionally, a person
+    /// at (6, -1). Returns per-point rings; upward beams that miss everything get no return.
+    fn ring_scan(person: bool) -> Vec<Point> {
+        let ground_z = -0.75f32;
+        let cylinders: Vec<(f32, f32, f32, f32)> = {
+            let mut c = vec![(5.0, 3.0, 0.08, 3.75)];
+            if person {
+                c.push((6.0, -1.0, 0.25, 1.0));
+            }
+            c
+        };
+        let mut out = Vec::new();
+        for col in 0..1800 {
+            let az = col as f32 * std::f32::consts::TAU / 1800.0;
+            for ring in 0..16u16 {
+                let el = (-15.0 + 2.0 * f32::from(ring)).to_radians();
+                let d = Vector3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
+                let mut best = f32::INFINITY;
+                if d.z < 0.0 {
+                    best = best.min(ground_z / d.z);
+                }
+                if d.x > 0.0 {
+                    let t = 15.0 / d.x;
+                    if (d.z * t) < 3.25 {
+                        best = best.min(t);
+                    }
+                }
+                for (cx, cy, r, top) in &cylinders {
+                    // |(t d - c)_xy| = r
+                    let (dx, dy) = (d.x, d.y);
+                    let a = dx * dx + dy * dy;
+                    let b = -2.0 * (dx * cx + dy * cy);
+                    let c = cx * cx + cy * cy - r * r;
+                    let disc = b * b - 4.0 * a * c;
+                    if disc >= 0.0 {
+                        let t = (-b - disc.sqrt()) / (2.0 * a);
+                        let z = t * d.z;
+                        if t > 0.0 && z >= ground_z && z <= *top {
+                            best = best.min(t);
+                        }
+                    }
+                }
+                if best < 100.0 {
+                    let p = d * best;
+                    out.push(Point {
+                        ring,
+                        ..Point::xyz(p.x, p.y, p.z)
+                    });
+                }
+            }
+        }
+        out
+    }
+
+    fn count_near(map: &Map, cx: f32, cy: f32, r: f32, z_min: f32) -> usize {
+        map.cloud()
+            .points
+            .iter()
+            .filter(|p| (p[0] - cx).hypot(p[1] - cy) <= r && p[2] >= z_min)
+            .count()
+    }
+
+    #[test]
+    fn a_person_who_walked_away_is_cleared_and_the_pole_and_wall_stay() {
+        let cfg = MapConfig::default();
+        let dyn_cfg = DynamicConfig::default();
+        let mut map = Map::new(MapIndexKind::KdTree, 1.1);
+        let with = ring_scan(true);
+        map.update(
+            &as_cloud(&with),
+            &with,
+            &Isometry3::identity(),
+            0.0,
+            &cfg,
+            &dyn_cfg,
+        );
+        // Above the ground under the feet; the person's head is above the sensor, where the
+        // lasers that pass through its place later get no return at all.
+        let person = count_near(&map, 6.0, -1.0, 0.4, -0.5);
+        let pole = count_near(&map, 5.0, 3.0, 0.2, -0.5);
+        let wall = map.cloud().points.iter().filter(|p| p[0] > 14.9).count();
+        assert!(
+            person > 20 && pole > 10 && wall > 200,
+            "{person} {pole} {wall}"
+        );
+        let without = ring_scan(false);
+        for _ in 0..6 {
+            map.observe(&without, &Isometry3::identity(), &dyn_cfg);
+        }
+        assert_eq!(count_near(&map, 6.0, -1.0, 0.4, -0.5), 0);
+        let pole_after = count_near(&map, 5.0, 3.0, 0.2, -0.5);
+        let wall_after = map.cloud().points.iter().filter(|p| p[0] > 14.9).count();
+        assert!(pole_after * 10 >= pole * 9, "pole {pole} -> {pole_after}");
+        // The wall behind the person was hidden by it in the first scan; nothing of it may go.
+        assert!(wall_after >= wall, "wall {wall} -> {wall_after}");
+        // Ray-model removals are counted and the index stays usable after them.
+        let mut nb = Vec::new();
+        map.knn(&[15.0, 0.0, 0.0], 3, 1.0, &mut nb);
+        assert_eq!(nb.len(), 3);
+        assert!(nb.iter().all(|(i, _)| (*i as usize) < map.len()));
+    }
+
+    #[test]
+    fn unstructured_scans_skip_the_range_image() {
+        let scan = ring_scan(false);
+        let flat: Vec<Point> = scan.iter().map(|p| Point::xyz(p.x, p.y, p.z)).collect();
+        let dirs: Vec<(f32, f32)> = flat
+            .iter()
+            .map(|p| angles(&Vector3::new(p.x, p.y, p.z)))
+            .collect();
+        let ranges: Vec<f32> = flat.iter().map(|p| p.range_m()).collect();
+        let rings: Vec<u16> = flat.iter().map(|p| p.ring).collect();
+        assert!(RangeImage::new(&rings, &dirs, &ranges, 0.0035, -0.1, 16).is_none());
+        let rings: Vec<u16> = scan.iter().map(|p| p.ring).collect();
+        // The two top lasers see only the pole (the sky over the wall elsewhere).
+        let im = RangeImage::new(&rings, &dirs, &ranges, 0.0035, -0.1, 16).expect("16 rings");
+        assert_eq!(im.els.len(), 16);
+        let top = im.els[15] - std::f32::consts::FRAC_PI_2;
+        assert!(
+            (top - 15f32.to_radians()).abs() < 1e-3,
+            "{}",
+            top.to_degrees()
+        );
+        let free = im.rows[15].iter().filter(|r| **r == f32::INFINITY).count();
+        assert!(free * 100 > 98 * im.rows[15].len(), "{free}");
+        // A laser with no return at all is still placed, on the line through the others.
+        let skyless: Vec<usize> = (0..scan.len()).filter(|i| scan[*i].ring != 15).collect();
+        let pick = |v: &[u16]| skyless.iter().map(|i| v[*i]).collect::<Vec<_>>();
+        let im = RangeImage::new(
+            &pick(&rings),
+            &skyless.iter().map(|i| dirs[*i]).collect::<Vec<_>>(),
+            &skyless.iter().map(|i| ranges[*i]).collect::<Vec<_>>(),
+            0.0035,
+            -0.1,
+            16,
+        )
+        .expect("15 rings seen");
+        assert_eq!(im.els.len(), 16);
+        let top = im.els[15] - std::f32::consts::FRAC_PI_2;
+        assert!(
+            (top - 15f32.to_radians()).abs() < 1e-3,
+            "{}",
+            top.to_degrees()
+        );
+        assert!(im.rows[15].iter().all(|r| *r == f32::INFINITY));
     }
 }

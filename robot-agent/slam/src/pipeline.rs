@@ -66,8 +66,11 @@ pub struct Diagnostics {
     pub reading_points: usize,
     /// Map points after the update.
     pub map_points: usize,
-    /// The map update.
+    /// The map update: the dynamic-point update on every localised scan, insertions only when
+    /// `map_updated`.
     pub map_update: MapUpdateStats,
+    /// True when this scan updated the map (see `map.update_min_travel_m`).
+    pub map_updated: bool,
     /// True when the scan was de-skewed.
     pub deskewed: bool,
 }
@@ -85,6 +88,10 @@ pub struct SlamOutput {
     pub pose_map_odom: Option<Isometry3<f64>>,
     /// Map points around the robot for the traversability mapper, map frame.
     pub map_cloud: Vec<Point>,
+    /// The whole sweep de-skewed into the lidar frame at `stamp_s` (every return, unfiltered),
+    /// when the scan had per-point times and de-skewing is on; the mapper wants this, not the
+    /// smeared raw sweep.
+    pub deskewed: Option<Vec<Point>>,
     /// ICP and map diagnostics.
     pub diagnostics: Diagnostics,
 }
@@ -101,6 +108,10 @@ pub struct Slam {
     /// Last two scan poses `(stamp, map<-lidar)`, newest last.
     history: VecDeque<(f64, Isometry3<f64>)>,
     map_from_odom: Isometry3<f64>,
+    /// `(stamp, map<-lidar)` of the last scan that updated the map.
+    last_map_update: Option<(f64, Isometry3<f64>)>,
+    /// Scans processed (the dynamic-point update runs on every `dynamic.every_n_scans`-th).
+    scans: u64,
 }
 
 /// Odometry older than this before the newest scan is dropped, seconds.
@@ -120,7 +131,23 @@ impl Slam {
             odom: VecDeque::new(),
             history: VecDeque::new(),
             map_from_odom: Isometry3::identity(),
+            last_map_update: None,
+            scans: 0,
         }
+    }
+
+    /// True when the scan at `pose` / `t_s` should update the map: the first one, then once the
+    /// sensor moved or turned enough, or enough time passed (dynamic points keep being cleared
+    /// while the robot stands).
+    fn wants_map_update(&self, t_s: f64, pose: &Isometry3<f64>) -> bool {
+        let c = &self.cfg.map;
+        let Some((t0, p0)) = &self.last_map_update else {
+            return true;
+        };
+        let d = p0.inverse() * pose;
+        se3::translation_norm(&d) >= c.update_min_travel_m
+            || se3::rotation_angle(&d) >= c.update_min_rotation_rad
+            || t_s - t0 >= c.update_max_interval_s
     }
 
     /// The configuration in use.
@@ -209,6 +236,7 @@ impl Slam {
                 });
             }
         }
+        self.scans += 1;
         let (prior, prior_kind) = self.prior(scan.stamp_s);
 
         // De-skew: express every return in the lidar frame at `stamp_s`.
@@ -248,19 +276,28 @@ impl Slam {
         let failed = icp_res.as_ref().is_some_and(|r| !r.status.is_ok());
 
         // A failed scan must not write a misplaced copy of the world into the map.
-        let map_update = if failed {
-            MapUpdateStats::default()
-        } else {
+        let map_updated = !failed && self.wants_map_update(scan.stamp_s, &pose_map_lidar);
+        let map_update = if map_updated {
+            self.last_map_update = Some((scan.stamp_s, pose_map_lidar));
             let reading_map: OrientedCloud = reading.transformed(&pose_map_lidar);
             self.map.update(
                 &reading_map,
                 raw,
                 &pose_map_lidar,
+                scan.stamp_s,
                 &self.cfg.map,
                 &self.cfg.dynamic,
             )
+        } else if !failed
+            && self
+                .scans
+                .is_multiple_of(self.cfg.dynamic.every_n_scans.max(1) as u64)
+        {
+            self.map.observe(raw, &pose_map_lidar, &self.cfg.dynamic)
+        } else {
+            MapUpdateStats::default()
         };
-
+        let was_deskewed = deskewed.is_some();
         let pose_map_base = pose_map_lidar * self.base_from_lidar.inverse();
         let pose_map_odom = self
             .odom_base_at(scan.stamp_s)
@@ -295,6 +332,7 @@ impl Slam {
             pose_map_lidar,
             pose_map_odom,
             map_cloud,
+            deskewed,
             diagnostics: Diagnostics {
                 prior: prior_kind,
                 status: r.map(|r| r.status),
@@ -307,7 +345,8 @@ impl Slam {
                 reading_points: reading.len(),
                 map_points: self.map.len(),
                 map_update,
-                deskewed: deskewed.is_some(),
+                map_updated,
+                deskewed: was_deskewed,
             },
         })
     }

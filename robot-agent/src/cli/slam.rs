@@ -26,7 +26,8 @@ enum SlamCommand {
 
 #[derive(Debug, clap::Args)]
 struct EvalArgs {
-    /// Sequence folder (clouds/NNN.pcd, poses.txt, optional stamps.txt and odom.txt).
+    /// Sequence folder (clouds/NNN.pcd, poses.txt, optional stamps.txt, odom.txt, meta.toml
+    /// with the lidar extrinsic, walkers.txt).
     dir: PathBuf,
     /// SLAM configuration (TOML, e.g. config/slam.toml); defaults when absent.
     #[arg(long)]
@@ -46,6 +47,12 @@ struct EvalArgs {
     /// Print per-frame diagnostics as JSON lines on stderr.
     #[arg(long)]
     verbose: bool,
+    /// Simulator recordings: score dynamic-point removal against the walkers recorded in
+    /// DIR/walkers.txt, in this scenario's world (map points seen on a walker that are still in
+    /// the map after it walked on, where the sensor could see). Prints a `walkers ...` line
+    /// before the summary; JSON gets a `walkers` object.
+    #[arg(long)]
+    scenario: Option<PathBuf>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -110,6 +117,354 @@ fn print_summary(e: &TrajectoryErrors, ms_per_frame: f64, json: bool) -> anyhow:
     Ok(())
 }
 
+/// `base_link <- lidar` from a recording's `meta.toml` (`[lidar_extrinsic]`), if it has one.
+fn recording_extrinsic(dir: &Path) -> anyhow::Result<Option<([f64; 3], [f64; 3])>> {
+    #[derive(serde::Deserialize)]
+    struct Mount {
+        xyz_m: [f64; 3],
+        rpy_rad: [f64; 3],
+    }
+    #[derive(serde::Deserialize)]
+    struct Meta {
+        lidar_extrinsic: Option<Mount>,
+    }
+    let p = dir.join("meta.toml");
+    if !p.exists() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(&p).with_context(|| format!("reading {}", p.display()))?;
+    let meta: Meta = toml::from_str(&text).with_context(|| format!("parsing {}", p.display()))?;
+    Ok(meta.lidar_extrinsic.map(|m| (m.xyz_m, m.rpy_rad)))
+}
+
+/// Progress while `slam eval` runs: a bar on a terminal, a plain line every 10% otherwise (logs
+/// of CI runs and tests get a heartbeat, not carriage-return noise).
+struct Progress {
+    bar: Option<indicatif::ProgressBar>,
+    len: usize,
+    next_line: usize,
+}
+
+impl Progress {
+    fn new(len: usize) -> Self {
+        use std::io::IsTerminal;
+        let bar = std::io::stderr().is_terminal().then(|| {
+            let b = indicatif::ProgressBar::new(len as u64);
+            b.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "slam {bar:40} {pos}/{len} [{elapsed_precise} < {eta}] {msg}",
+                )
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+            );
+            b
+        });
+        Self {
+            bar,
+            len,
+            next_line: len.div_ceil(10).max(1),
+        }
+    }
+
+    fn println(&self, line: &str) {
+        match &self.bar {
+            Some(b) => b.suspend(|| eprintln!("{line}")),
+            None => eprintln!("{line}"),
+        }
+    }
+
+    fn step(&mut self, done: usize, ms_per_frame: f64, map_points: usize) {
+        match &self.bar {
+            Some(b) => {
+                b.set_message(format!(
+                    "{ms_per_frame:.1} ms/frame, {map_points} map points"
+                ));
+                b.set_position(done as u64);
+            }
+            None if done >= self.next_line || done == self.len => {
+                eprintln!(
+                    "slam {done}/{} frames, {ms_per_frame:.1} ms/frame, {map_points} map points",
+                    self.len
+                );
+                self.next_line = done + self.len.div_ceil(10).max(1);
+            }
+            None => {}
+        }
+    }
+
+    fn finish(&self) {
+        if let Some(b) = &self.bar {
+            b.finish_and_clear();
+        }
+    }
+}
+
+/// Walker scoring: how much of the walkers ends up in the map, and whether it stays there.
+///
+/// A map point is a walker point when, traced back to the world through the scan that inserted
+/// it ([`slam::Provenance`]), it lies in a walker's body during that scan's sweep (the ground
+/// under the feet excluded). At a checkpoint, a walker point is "left" when it is still in the
+/// map though it was seen at least [`WALKER_GRACE_S`] ago, no walker is there now, and the
+/// sensor has had a clear view of the spot for the last [`WALKER_VIEW_S`]: at every look a laser
+/// of the (true) sensor passed within [`WALKER_SEEN_M`] of it with nothing in between, per a ray
+/// cast in the scenario's world with the recorded walkers. Points no laser could look at (behind
+/// a walker walking toward the sensor, or in the gap between two lasers) are reported apart.
+struct WalkerScore {
+    world: sim::World,
+    /// Recorded walker states (`walkers.txt`): per time, every walker.
+    track: Vec<(f64, Vec<sim::WalkerState>)>,
+    /// Map points inserted from walker returns, over the run.
+    inserted: usize,
+    /// Walker points left in the map at the last checkpoint.
+    left_final: usize,
+    /// The most there ever were at a checkpoint, and when.
+    left_max: (usize, f64),
+    /// Walker points the sensor could not look at, at the last checkpoint (not counted as left).
+    unseen_final: usize,
+    next_check_s: f64,
+}
+
+/// Age a walker point must reach before it counts as left, seconds.
+const WALKER_GRACE_S: f64 = 3.0;
+/// How long the sensor must have had a clear view of a spot before a point there counts, s.
+const WALKER_VIEW_S: f64 = 1.5;
+/// A laser passing this close to a spot looks at it (a person there would have been hit), m.
+const WALKER_SEEN_M: f64 = 0.1;
+/// Margin around a walker's body (sweep motion, range noise, pose error), metres.
+const WALKER_MARGIN_M: f64 = 0.1;
+/// Points lower than this above a walker's ground are ground under its feet, not the walker.
+const WALKER_MIN_HEIGHT_M: f64 = 0.2;
+/// Checkpoint period of the leftover count, seconds.
+const WALKER_CHECK_S: f64 = 10.0;
+/// Sweep duration assumed for a scan's points (they are seen over [stamp, stamp + this]).
+const SWEEP_S: f64 = 0.1;
+
+fn read_walkers(dir: &Path) -> anyhow::Result<Vec<(f64, Vec<sim::WalkerState>)>> {
+    let p = dir.join("walkers.txt");
+    let text = std::fs::read_to_string(&p).with_context(|| {
+        format!(
+            "reading {} (--scenario scores the walkers recorded by `robot-agent sim --record`)",
+            p.display()
+        )
+    })?;
+    let mut track: Vec<(f64, Vec<sim::WalkerState>)> = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let v: Vec<f64> = line
+            .split_whitespace()
+            .map(str::parse)
+            .collect::<Result<_, _>>()
+            .with_context(|| format!("{} line {}", p.display(), n + 1))?;
+        let [t, id, x, y, z, r, h] = v[..] else {
+            bail!("{} line {}: want 7 numbers", p.display(), n + 1);
+        };
+        let w = sim::WalkerState {
+            id: id as usize,
+            x_m: x,
+            y_m: y,
+            z_m: z,
+            radius_m: r,
+            height_m: h,
+        };
+        match track.last_mut() {
+            Some((lt, ws)) if (*lt - t).abs() < 1e-9 => ws.push(w),
+            _ => track.push((t, vec![w])),
+        }
+    }
+    Ok(track)
+}
+
+impl WalkerScore {
+    fn new(scenario: &Path, dir: &Path) -> anyhow::Result<Self> {
+        let sc = sim::Scenario::load(scenario)?;
+        Ok(Self {
+            world: sim::World::new(&sc),
+            track: read_walkers(dir)?,
+            inserted: 0,
+            left_final: 0,
+            left_max: (0, 0.0),
+            unseen_final: 0,
+            next_check_s: WALKER_CHECK_S,
+        })
+    }
+
+    /// Walkers at `t_s`, interpolated between recorded states (same walkers in each record).
+    fn walkers_at(&self, t_s: f64) -> Vec<sim::WalkerState> {
+        let i = self.track.partition_point(|(t, _)| *t < t_s);
+        match (
+            i.checked_sub(1).and_then(|j| self.track.get(j)),
+            self.track.get(i),
+        ) {
+            (Some((ta, a)), Some((tb, b))) if a.len() == b.len() && tb > ta => {
+                let f = (t_s - ta) / (tb - ta);
+                a.iter()
+                    .zip(b)
+                    .map(|(p, q)| sim::WalkerState {
+                        x_m: p.x_m + f * (q.x_m - p.x_m),
+                        y_m: p.y_m + f * (q.y_m - p.y_m),
+                        z_m: p.z_m + f * (q.z_m - p.z_m),
+                        ..*p
+                    })
+                    .collect()
+            }
+            (_, Some((_, b))) => b.clone(),
+            (Some((_, a)), None) => a.clone(),
+            (None, None) => Vec::new(),
+        }
+    }
+
+    fn bodies(&self, t_s: f64, extra_m: f64) -> Vec<slam::Cylinder> {
+        self.walkers_at(t_s)
+            .iter()
+            .map(|w| slam::Cylinder {
+                x_m: w.x_m,
+                y_m: w.y_m,
+                z_min_m: w.z_m + WALKER_MIN_HEIGHT_M,
+                z_max_m: w.z_m + w.height_m + WALKER_MARGIN_M + extra_m,
+                radius_m: w.radius_m + WALKER_MARGIN_M + extra_m,
+            })
+            .collect()
+    }
+
+    /// Walker bodies over a scan's sweep.
+    fn swept(&self, t_s: f64) -> Vec<slam::Cylinder> {
+        [t_s, t_s + SWEEP_S]
+            .iter()
+            .flat_map(|t| self.bodies(*t, 0.0))
+            .collect()
+    }
+
+    /// Counts the map points inserted by the scan stamped `t_s` that came from walkers.
+    fn count_inserted(&mut self, map: &slam::map::Map, prov: &slam::Provenance, t_s: f64) {
+        let bodies = self.swept(t_s);
+        let pts = &map.cloud().points;
+        let stamps = map.stamps();
+        self.inserted += (0..pts.len())
+            .rev()
+            .take_while(|i| stamps[*i] == t_s)
+            .filter_map(|i| prov.world(&pts[i], t_s))
+            .filter(|w| bodies.iter().any(|c| c.contains(w)))
+            .count();
+    }
+
+    /// True when a laser of the sensor at `lidar` (true pose, time `t_s`) passed within
+    /// [`WALKER_SEEN_M`] of `w` with nothing in between.
+    fn looked_at(&self, lidar: &Isometry3<f64>, w: &nalgebra::Vector3<f64>, t_s: f64) -> bool {
+        let q = lidar.inverse() * nalgebra::Point3::from(*w);
+        let r = q.coords.norm();
+        if r < 0.5 {
+            return false;
+        }
+        let el = (q.z / r).asin();
+        let az = q.y.atan2(q.x);
+        let walkers = self.bodies(t_s, 0.0);
+        sim::sensors::VLP16_ELEVATIONS_DEG.iter().any(|e| {
+            let e = e.to_radians();
+            if (e - el).abs() * r > WALKER_SEEN_M {
+                return false;
+            }
+            let d = lidar.rotation
+                * nalgebra::Vector3::new(e.cos() * az.cos(), e.cos() * az.sin(), e.sin());
+            let o = nalgebra::Point3::from(lidar.translation.vector);
+            let end = o + d * (r - 0.3);
+            self.static_clear(&o, &d, r - 0.3, t_s)
+                && !walkers.iter().any(|c| blocks(c, &o.coords, &end.coords))
+        })
+    }
+
+    /// True when nothing static lies along `d` from `o` within `range_m` (the world's own walkers
+    /// follow their scripts, not the recorded positions, and are stepped through).
+    fn static_clear(
+        &self,
+        o: &nalgebra::Point3<f64>,
+        d: &nalgebra::Vector3<f64>,
+        range_m: f64,
+        t_s: f64,
+    ) -> bool {
+        let mut start = 0.0;
+        while start < range_m {
+            let from = o + d * start;
+            match self.world.raycast(&from, d, range_m - start, t_s) {
+                None => return true,
+                Some(h) if matches!(h.kind, sim::HitKind::Walker(_)) => start += h.range_m + 0.6,
+                Some(_) => return false,
+            }
+        }
+        true
+    }
+
+    /// Walker points left at `now_s`, and those the sensor could not look at; `lidar_at` is
+    /// the true sensor pose at a time.
+    fn left(
+        &self,
+        map: &slam::map::Map,
+        prov: &slam::Provenance,
+        now_s: f64,
+        lidar_at: impl Fn(f64) -> Isometry3<f64>,
+    ) -> (usize, usize) {
+        let now: Vec<_> = [now_s - SWEEP_S, now_s, now_s + SWEEP_S]
+            .iter()
+            .flat_map(|t| self.bodies(*t, 0.2))
+            .collect();
+        let views: Vec<(f64, Isometry3<f64>)> = (0..=(WALKER_VIEW_S / 0.5).round() as usize)
+            .map(|j| now_s - 0.5 * j as f64)
+            .map(|t| (t, lidar_at(t)))
+            .collect();
+        // Walker bodies per insertion stamp: map points come in batches of one scan each.
+        let mut at: std::collections::HashMap<u64, Vec<slam::Cylinder>> = Default::default();
+        let (mut left, mut unseen) = (0, 0);
+        for (p, t) in map.cloud().points.iter().zip(map.stamps()) {
+            if *t > now_s - WALKER_GRACE_S {
+                continue;
+            }
+            let Some(w) = prov.world(p, *t) else { continue };
+            let then = at.entry(t.to_bits()).or_insert_with(|| self.swept(*t));
+            if !then.iter().any(|c| c.contains(&w)) || now.iter().any(|c| c.contains(&w)) {
+                continue;
+            }
+            if views.iter().all(|(t, lidar)| self.looked_at(lidar, &w, *t)) {
+                left += 1;
+            } else {
+                unseen += 1;
+            }
+        }
+        (left, unseen)
+    }
+
+    fn check(
+        &mut self,
+        map: &slam::map::Map,
+        prov: &slam::Provenance,
+        now_s: f64,
+        last: bool,
+        lidar_at: impl Fn(f64) -> Isometry3<f64>,
+    ) {
+        if !last && now_s < self.next_check_s {
+            return;
+        }
+        self.next_check_s = now_s + WALKER_CHECK_S;
+        let (n, unseen) = self.left(map, prov, now_s, lidar_at);
+        self.left_final = n;
+        self.unseen_final = unseen;
+        if n > self.left_max.0 {
+            self.left_max = (n, now_s);
+        }
+    }
+}
+
+/// True when the body `c` stands on the line of sight from `s` to `w`.
+fn blocks(c: &slam::Cylinder, s: &nalgebra::Vector3<f64>, w: &nalgebra::Vector3<f64>) -> bool {
+    let d = w - s;
+    let len2 = d.x * d.x + d.y * d.y;
+    if len2 < 1e-9 {
+        return false;
+    }
+    // Closest approach of the horizontal projection to the axis.
+    let u = (((c.x_m - s.x) * d.x + (c.y_m - s.y) * d.y) / len2).clamp(0.0, 1.0);
+    let (x, y, z) = (s.x + u * d.x, s.y + u * d.y, s.z + u * d.z);
+    (x - c.x_m).hypot(y - c.y_m) <= c.radius_m
+        && z >= c.z_min_m - WALKER_MIN_HEIGHT_M
+        && z <= c.z_max_m
+}
+
 fn eval(a: EvalArgs) -> anyhow::Result<()> {
     let gt = sequence::read_poses(&a.dir)?;
     if let Some(p) = &a.score_poses {
@@ -121,66 +476,90 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
         }
         return print_summary(&slam::trajectory_errors(&est, &gt), f64::NAN, a.json);
     }
-    let cfg = load_config(a.config.as_deref())?;
+    let mut cfg = load_config(a.config.as_deref())?;
+    // A recording knows how its sensor was mounted; the odometry prior and the robot box need it.
+    if let Some((xyz, rpy)) = recording_extrinsic(&a.dir)? {
+        cfg.sensor.lidar_xyz_m = xyz;
+        cfg.sensor.lidar_rpy_rad = rpy;
+    }
     let mut files = sequence::cloud_files(&a.dir)?;
     if let Some(n) = a.frames {
         files.truncate(n);
     }
-    let stamps = sequence::read_stamps(&a.dir)?;
+    // KITTI has no stamps file: its scans are 10 Hz.
+    let stamps: Vec<f64> = match sequence::read_stamps(&a.dir)? {
+        Some(s) => (0..files.len())
+            .map(|i| s.get(i).copied().unwrap_or(i as f64 * 0.1))
+            .collect(),
+        None => (0..files.len()).map(|i| i as f64 * 0.1).collect(),
+    };
+    let mut walkers = a
+        .scenario
+        .as_deref()
+        .map(|sc| WalkerScore::new(sc, &a.dir))
+        .transpose()?;
+    if walkers.is_some() {
+        anyhow::ensure!(
+            gt.len() >= files.len(),
+            "--scenario needs a true pose per scan ({} poses, {} scans)",
+            gt.len(),
+            files.len()
+        );
+    }
     let mut slam = Slam::new(cfg);
     if let Some(odom) = sequence::read_odometry(&a.dir)? {
         for s in odom {
             slam.push_odometry(s);
         }
     }
-    let bar = indicatif::ProgressBar::new(files.len() as u64);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("slam {bar:40} {pos}/{len} {msg}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    let mut prov = slam::Provenance::default();
+    let mut progress = Progress::new(files.len());
     let mut est: Vec<Isometry3<f64>> = Vec::with_capacity(files.len());
     let mut total_s = 0.0;
     let mut failures = 0usize;
     for (i, f) in files.iter().enumerate() {
         let points =
             sensing::pcd::read_pcd(f).with_context(|| format!("reading {}", f.display()))?;
-        // KITTI has no stamps file: its scans are 10 Hz.
-        let stamp_s = stamps
-            .as_ref()
-            .and_then(|s| s.get(i).copied())
-            .unwrap_or(i as f64 * 0.1);
-        let mut scan = Scan { stamp_s, points };
+        let mut scan = Scan {
+            stamp_s: stamps[i],
+            points,
+        };
         scan.retain_finite();
         let t0 = Instant::now();
         let out = slam.process(&scan);
         total_s += t0.elapsed().as_secs_f64();
+        let mut map_updated = false;
         match out {
             Ok(o) => {
                 if o.diagnostics.fell_back_to_prior {
                     failures += 1;
                 }
                 if a.verbose {
-                    bar.suspend(|| {
-                        eprintln!("{}", serde_json::json!({"frame": i, "diag": o.diagnostics}))
-                    });
+                    progress.println(
+                        &serde_json::json!({"frame": i, "diag": o.diagnostics}).to_string(),
+                    );
                 }
+                map_updated = o.diagnostics.map_updated;
                 est.push(o.pose_map_lidar);
             }
             Err(e) => {
                 // Keep the trajectory aligned with the ground truth: repeat the last pose.
                 failures += 1;
-                bar.suspend(|| eprintln!("frame {i}: {e}"));
+                progress.println(&format!("frame {i}: {e}"));
                 est.push(est.last().copied().unwrap_or_else(Isometry3::identity));
             }
         }
-        bar.set_message(format!(
-            "{:.1} ms/frame, {} map points",
-            1e3 * total_s / (i + 1) as f64,
-            slam.map().len()
-        ));
-        bar.inc(1);
+        if let Some(w) = &mut walkers {
+            prov.push(stamps[i], &est[i], &gt[i]);
+            if map_updated {
+                w.count_inserted(slam.map(), &prov, stamps[i]);
+            }
+            let lidar_at = |t: f64| gt[stamps[..=i].partition_point(|s| *s < t).min(i)];
+            w.check(slam.map(), &prov, stamps[i], i + 1 == files.len(), lidar_at);
+        }
+        progress.step(i + 1, 1e3 * total_s / (i + 1) as f64, slam.map().len());
     }
-    bar.finish_and_clear();
+    progress.finish();
     if failures > 0 {
         eprintln!("{failures} scans fell back to the prior");
     }
@@ -192,7 +571,40 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
         std::fs::write(p, text).with_context(|| format!("writing {}", p.display()))?;
     }
     let ms = 1e3 * total_s / files.len().max(1) as f64;
-    print_summary(&slam::trajectory_errors(&est, &gt), ms, a.json)
+    let errors = slam::trajectory_errors(&est, &gt);
+    match &walkers {
+        None => print_summary(&errors, ms, a.json),
+        Some(w) => {
+            let wj = serde_json::json!({
+                "count": w.world.walker_count(),
+                "points_inserted": w.inserted,
+                "left_final": w.left_final,
+                "left_max": w.left_max.0,
+                "left_max_t_s": w.left_max.1,
+                "unseen_final": w.unseen_final,
+                "grace_s": WALKER_GRACE_S,
+            });
+            if a.json {
+                let mut v = serde_json::to_value(errors)?;
+                v["ms_per_frame"] = serde_json::json!(ms);
+                v["walkers"] = wj;
+                println!("{v}");
+                Ok(())
+            } else {
+                println!(
+                    "walkers {} points_inserted {} left_final {} left_max {} (at {:.1} s) unseen_final {} grace_s {}",
+                    w.world.walker_count(),
+                    w.inserted,
+                    w.left_final,
+                    w.left_max.0,
+                    w.left_max.1,
+                    w.unseen_final,
+                    WALKER_GRACE_S
+                );
+                print_summary(&errors, ms, false)
+            }
+        }
+    }
 }
 
 fn register(a: RegisterArgs) -> anyhow::Result<()> {
