@@ -109,6 +109,18 @@ impl Lattice {
     /// The tile holding a global cell, and the cell's (column, row) inside it.
     pub fn tile_of_cell(&self, cx: i64, cy: i64) -> (TileIndex, (u16, u16)) {
         let n = self.tile_cells as i64;
+        if self.tile_cells.is_power_of_two() {
+            // Hot path of every mapper lookup: an arithmetic shift is the floor division.
+            let k = self.tile_cells.trailing_zeros();
+            let m = n - 1;
+            return (
+                TileIndex {
+                    tx: (cx >> k) as i32,
+                    ty: (cy >> k) as i32,
+                },
+                ((cx & m) as u16, (cy & m) as u16),
+            );
+        }
         (
             TileIndex {
                 tx: cx.div_euclid(n) as i32,

@@ -32,6 +32,10 @@ pub enum Class {
     /// Not drivable: the observed surface ends at a drop-off or hole (no returns where the
     /// geometry says there should be some).
     NegativeObstacle,
+    /// Ground was seen but no beam ever crossed the robot's body height above it: something
+    /// may hang over it (a car body on its wheels, a table, a low branch), or it lies in the
+    /// grazing shadow of an edge. Not known to be drivable; not an obstacle either.
+    Overhung,
 }
 
 impl Class {
@@ -178,6 +182,7 @@ impl Rules {
         // Step test: along x, y and both diagonals, the jump between the cell and its neighbour
         // minus the mean slope on either side. A kink (ramp toe) gives half its slope change, a
         // step its full height, so 5 cm and 10 cm separate even on sloped ground.
+        let face_var = (0.25 * self.max_step_m).powi(2);
         for (ux, uy) in [(1, 0), (0, 1), (1, 1), (1, -1)] {
             for s in [-1, 1] {
                 let (ax, ay) = (ux * s, uy * s);
@@ -205,6 +210,34 @@ impl Rules {
                 if (jump - slope).abs() > self.max_step_m {
                     return Verdict::Step;
                 }
+            }
+            // A step whose face lies inside this cell splits its height between the two
+            // neighbour jumps (this cell's mean sits halfway); across the cell it is whole:
+            // compare the neighbours on either side, minus twice the slope outside them. Only
+            // for a cell whose own heights spread like a face of that size (a face of height h
+            // spreads its points with a standard deviation of at least ~h/4).
+            if c.var_m2 < face_var {
+                continue;
+            }
+            let (Some(lo), Some(hi)) = (seen(-ux, -uy), seen(ux, uy)) else {
+                continue;
+            };
+            // Only smooth sides give the slope: one that jumps by a step is that step.
+            let side_limit = self.max_step_m;
+            let mut sides = Vec::with_capacity(2);
+            if let Some(h) = seen(-2 * ux, -2 * uy) {
+                sides.push(lo - h);
+            }
+            if let Some(h) = seen(2 * ux, 2 * uy) {
+                sides.push(h - hi);
+            }
+            sides.retain(|d: &f64| d.abs() <= side_limit);
+            if sides.is_empty() {
+                continue;
+            }
+            let slope = sides.iter().sum::<f64>() / sides.len() as f64;
+            if (hi - lo - 2.0 * slope).abs() > self.max_step_m {
+                return Verdict::Step;
             }
         }
         Verdict::Traversable

@@ -61,6 +61,29 @@ pub struct Config {
     /// a minority seen in a single scan, are treated as stray dynamic points and dropped, metres.
     pub stray_height_m: f64,
 
+    // --- Free space (beyond the source) ---
+    /// A beam counts as crossing a cell's headroom from this height above the ground up to
+    /// `h_r`; lower beams graze the ground and prove nothing, metres.
+    pub clear_low_m: f64,
+    /// Beams of one sweep that must cross a cell below its stored points (with none of the
+    /// sweep's own returns up there) before those points are taken as gone.
+    pub clear_min_beams: u16,
+    /// Stored points must stand this much above the lowest crossing beam to be contradicted,
+    /// and the sweep's own returns this close to it keep the cell occupied, metres.
+    pub clear_margin_m: f64,
+    /// Every n-th return is marched for free space (the azimuth step of a VLP-16 is 0.2 deg,
+    /// far finer than a cell at the ranges that matter).
+    pub beam_stride: usize,
+
+    /// Points of a sweep are ignored for a cell that was seen from less than
+    /// 1/`far_evidence_factor` of today's distance (minus 1 m) within the last
+    /// `evidence_stale_s`, unless they stand higher (or lie lower) than anything the cell held by
+    /// `max_step_m`: a far glimpse is not allowed to replace a close look, only to show what is
+    /// new (what went is shown by free space).
+    pub far_evidence_factor: f64,
+    /// After this long without accepted evidence a cell takes whatever comes, seconds.
+    pub evidence_stale_s: f64,
+
     // --- Evidence ---
     /// Length of one evidence epoch, seconds. A cell's statistics are those of its newest two
     /// epochs with observations, so newer evidence replaces what walkers left behind.
@@ -124,6 +147,12 @@ impl Default for Config {
             alpha_deg: 23.0,
             max_step_m: 0.075,
             stray_height_m: 0.15,
+            clear_low_m: 0.3,
+            clear_min_beams: 2,
+            clear_margin_m: 0.05,
+            beam_stride: 4,
+            far_evidence_factor: 2.0,
+            evidence_stale_s: 3600.0,
             evidence_epoch_s: 1.0,
             obstacle_distance_m: 0.4,
             cost_distance_m: 1.2,
@@ -219,6 +248,15 @@ impl Config {
         bad(
             self.lowest_beam_deg < 0.0 && self.lowest_beam_deg > -89.0,
             "lowest_beam_deg must be in (-89, 0)",
+        )?;
+        bad(
+            self.clear_low_m >= 0.0 && self.clear_low_m < self.h_r_m,
+            "clear_low_m must be in [0, h_r_m)",
+        )?;
+        bad(self.clear_margin_m >= 0.0, "clear_margin_m must be >= 0")?;
+        bad(
+            (1..=64).contains(&self.beam_stride),
+            "beam_stride must be in 1..=64",
         )?;
         Ok(())
     }

@@ -29,6 +29,19 @@ pub fn height_filter(
 /// Step 2: drops a point when, for any pair, the mean distance to its `knn_k` nearest neighbours
 /// exceeds `dist_k_m`. Returns how many points were dropped.
 pub fn isolated_point_filter(points: &mut Vec<[f32; 3]>, pairs: &[IsolatedPair]) -> usize {
+    let test = vec![true; points.len()];
+    isolated_point_filter_where(points, pairs, &test)
+}
+
+/// [`isolated_point_filter`] testing only the points with `test[i]` (all points still count as
+/// neighbours). The mapper tests only points above their cell's lowest return: a stray point at
+/// ground level cannot raise an obstacle, and ground returns are ~85 % of a sweep.
+pub fn isolated_point_filter_where(
+    points: &mut Vec<[f32; 3]>,
+    pairs: &[IsolatedPair],
+    test: &[bool],
+) -> usize {
+    debug_assert_eq!(points.len(), test.len());
     let before = points.len();
     let k_max = pairs.iter().map(|p| p.knn_k).max().unwrap_or(0);
     if points.is_empty() || k_max == 0 {
@@ -50,7 +63,11 @@ pub fn isolated_point_filter(points: &mut Vec<[f32; 3]>, pairs: &[IsolatedPair])
     };
     let keep: Vec<bool> = points
         .iter()
-        .map(|q| {
+        .zip(test)
+        .map(|(q, &t)| {
+            if !t {
+                return true;
+            }
             let nn = tree
                 .query(q)
                 .nearest_n::<SquaredEuclidean<f32>>(k_query)

@@ -99,6 +99,12 @@ pub struct UpdateReport {
     pub classified_cells: usize,
     /// Cells whose class changed.
     pub class_changes: usize,
+    /// Beams marched for free space.
+    pub beams_marched: usize,
+    /// Cells whose old evidence a beam contradicted (walkers gone, stray points).
+    pub cleared_cells: usize,
+    /// Cells whose points this sweep were ignored: seen much better from closer before.
+    pub far_skipped: usize,
 }
 
 /// The planner's view: a window of final cells around the robot, row-major, row 0 southmost.
@@ -127,6 +133,24 @@ impl PlannerView {
         }
         self.cells[y as usize * self.width as usize + x as usize]
     }
+}
+
+/// `x.floor() as i64` without a libm call (the default x86-64 target has no SSE4.1 `roundsd`,
+/// and this runs for every return and every beam step).
+#[inline]
+fn floor_i64(x: f64) -> i64 {
+    let i = x as i64;
+    if (i as f64) > x {
+        i - 1
+    } else {
+        i
+    }
+}
+
+/// `a.hypot(b)` without libm's overflow care, which these magnitudes never need.
+#[inline]
+fn norm2(a: f64, b: f64) -> f64 {
+    (a * a + b * b).sqrt()
 }
 
 /// Multiplicative hash for small integer keys (deterministic, no per-process seed).
@@ -164,6 +188,8 @@ struct Moments {
     szz: f64,
     /// Highest point; a riser's points pull a cell's mean halfway down the step, its top does not.
     zmax: f32,
+    /// Lowest point: the cell's ground when something stands on it.
+    zmin: f32,
 }
 
 impl Default for Moments {
@@ -173,6 +199,7 @@ impl Default for Moments {
             sz: 0.0,
             szz: 0.0,
             zmax: f32::NEG_INFINITY,
+            zmin: f32::INFINITY,
         }
     }
 }
@@ -183,6 +210,7 @@ impl Moments {
         self.sz += z;
         self.szz += z * z;
         self.zmax = self.zmax.max(z as f32);
+        self.zmin = self.zmin.min(z as f32);
     }
     fn merged(&self, o: &Moments) -> Moments {
         Moments {
@@ -190,6 +218,7 @@ impl Moments {
             sz: self.sz + o.sz,
             szz: self.szz + o.szz,
             zmax: self.zmax.max(o.zmax),
+            zmin: self.zmin.min(o.zmin),
         }
     }
     fn stats(&self) -> CellStats {
@@ -208,11 +237,20 @@ impl Moments {
 }
 
 /// Everything the mapper keeps about one lattice cell.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug)]
 struct CellData {
     /// Evidence of the newest epoch with observations, and of the one before.
     cur: Moments,
     prev: Moments,
+    /// Closest robot distance each epoch's evidence was seen from, metres.
+    cur_range_m: f32,
+    prev_range_m: f32,
+    /// Session time evidence was last accepted into the cell, seconds.
+    accepted_s: f32,
+    /// Closest robot distance from which this cell was judged a drop-off, metres.
+    neg_range_m: f32,
+    /// Closest robot distance from which the cell's current class was judged, metres.
+    class_range_m: f32,
     epoch: i64,
     /// Points far above the cell's ground seen in one scan only, waiting for confirmation.
     pending: Moments,
@@ -222,10 +260,38 @@ struct CellData {
     hits: u8,
     last_scan: u32,
     stamp_s: u32,
+    /// A beam crossed the band between `clear_low_m` and the robot's height above this cell's
+    /// ground: the space the robot body needs was seen empty at least once.
+    headroom: bool,
     /// The robot's footprint covered this cell (proprioception), at this ground height.
     driven: bool,
     driven_z: f32,
     class: Class,
+}
+
+impl Default for CellData {
+    fn default() -> Self {
+        Self {
+            cur: Moments::default(),
+            prev: Moments::default(),
+            cur_range_m: f32::INFINITY,
+            prev_range_m: f32::INFINITY,
+            accepted_s: f32::NEG_INFINITY,
+            neg_range_m: f32::INFINITY,
+            class_range_m: f32::INFINITY,
+            epoch: 0,
+            pending: Moments::default(),
+            pending_scan: 0,
+            last_cloud: Moments::default(),
+            hits: 0,
+            last_scan: 0,
+            stamp_s: 0,
+            headroom: false,
+            driven: false,
+            driven_z: 0.0,
+            class: Class::default(),
+        }
+    }
 }
 
 impl CellData {
@@ -258,6 +324,15 @@ struct Window {
     touched: Vec<usize>,
     mark: Vec<u32>,
     generation: u32,
+    /// Beams of this sweep that crossed the cell in the headroom band, and the lowest of them
+    /// (absolute height, metres).
+    pass_n: Vec<u16>,
+    pass_lo: Vec<f32>,
+    /// The ground a cell's crossing beams are measured from (NaN: not visited this sweep).
+    pass_g: Vec<f32>,
+    /// Stored ground per cell for the ceilings (NaN: not looked up; reset after each use).
+    stored_ground: Vec<f32>,
+    pass_touched: Vec<usize>,
 }
 
 impl Window {
@@ -276,6 +351,11 @@ impl Window {
             touched: Vec::new(),
             mark: vec![0; n],
             generation: 0,
+            pass_n: vec![0; n],
+            pass_lo: vec![f32::INFINITY; n],
+            pass_g: vec![f32::NAN; n],
+            stored_ground: vec![f32::NAN; n],
+            pass_touched: Vec::new(),
         }
     }
     fn local(&self, cx: i64, cy: i64) -> Option<usize> {
@@ -297,6 +377,12 @@ impl Window {
             self.high[i] = Moments::default();
         }
         self.touched.clear();
+        for &i in &self.pass_touched {
+            self.pass_n[i] = 0;
+            self.pass_lo[i] = f32::INFINITY;
+            self.pass_g[i] = f32::NAN;
+        }
+        self.pass_touched.clear();
     }
     /// Starts a new de-duplication generation for `mark`.
     fn next_generation(&mut self) -> u32 {
@@ -328,8 +414,18 @@ pub struct Mapper {
     /// Reclassify every cell of the window on every update (the baseline the incremental
     /// path is measured and tested against).
     full: bool,
+    /// The last tile -> slot lookup (`usize::MAX`: none yet).
+    last_slot: std::cell::Cell<(TileIndex, usize)>,
+    /// 1 / cell size, per metre.
+    inv_cell_m: f64,
 }
 
+/// The headroom band stops this far below the robot's height: a beam passing just under `h_r`
+/// over a cell says little about the robot's top (and a car body's top is about that high).
+const HEADROOM_TOP_MARGIN_M: f64 = 0.2;
+/// Points this far above their cell's lowest return in the sweep go through the isolated-point
+/// filter; lower ones are ground and cannot raise an obstacle on their own, metres.
+const SUSPECT_ABOVE_M: f32 = 0.04;
 /// Tiles are republished at most this often (architecture.md: at most 2 Hz per tile).
 const TILE_MIN_INTERVAL_S: f64 = 0.5;
 /// The published height only follows the live one when it moved this much: sensor noise on a
@@ -355,6 +451,7 @@ impl Mapper {
             }
         }
         offsets.sort_by(|a, b| a.0.total_cmp(&b.0).then((a.1, a.2).cmp(&(b.1, b.2))));
+        let cfg_cell = cfg.lattice().cell_size_f64();
         Ok(Self {
             rules: Rules::new(&cfg),
             lattice: cfg.lattice(),
@@ -368,6 +465,8 @@ impl Mapper {
             last_t_s: None,
             offsets,
             full: false,
+            last_slot: std::cell::Cell::new((TileIndex { tx: 0, ty: 0 }, usize::MAX)),
+            inv_cell_m: 1.0 / cfg_cell,
         })
     }
 
@@ -408,7 +507,20 @@ impl Mapper {
                 [v.x, v.y, v.z]
             })
             .collect();
-        self.update_points(pts, robot, t_s, Evidence::Scan)
+        let o = pose_map_sensor.translation.vector;
+        self.update(pts, Some([o.x, o.y, o.z]), robot, t_s, Evidence::Scan)
+    }
+
+    /// One sweep already in the map frame (e.g. de-skewed), seen from `sensor_map` (the sensor's
+    /// map-frame position): like [`Mapper::update_scan`], with the beams' free space.
+    pub fn update_sweep(
+        &mut self,
+        pts_map: Vec<[f32; 3]>,
+        sensor_map: [f64; 3],
+        robot: &RobotPose,
+        t_s: f64,
+    ) -> Result<UpdateReport, MapError> {
+        self.update(pts_map, Some(sensor_map), robot, t_s, Evidence::Scan)
     }
 
     /// The map cloud around the robot (map frame), e.g. from SLAM.
@@ -422,14 +534,30 @@ impl Mapper {
         self.update_points(pts, robot, t_s, Evidence::MapCloud)
     }
 
-    /// The core step: map-frame points, the robot, the time, and how to treat the points.
+    /// Map-frame points without a sensor origin (no free-space reasoning: every cell counts as
+    /// having headroom), the robot, the time, and how to treat the points.
     pub fn update_points(
         &mut self,
-        mut pts: Vec<[f32; 3]>,
+        pts: Vec<[f32; 3]>,
         robot: &RobotPose,
         t_s: f64,
         kind: Evidence,
     ) -> Result<UpdateReport, MapError> {
+        self.update(pts, None, robot, t_s, kind)
+    }
+
+    /// The core step.
+    fn update(
+        &mut self,
+        mut pts: Vec<[f32; 3]>,
+        sensor: Option<[f64; 3]>,
+        robot: &RobotPose,
+        t_s: f64,
+        kind: Evidence,
+    ) -> Result<UpdateReport, MapError> {
+        if sensor.is_some_and(|o| !o.iter().all(|v| v.is_finite())) {
+            return Err(MapError::BadPose);
+        }
         if !robot.is_finite() || !t_s.is_finite() {
             return Err(MapError::BadPose);
         }
@@ -452,6 +580,17 @@ impl Mapper {
         pts.retain(|p| p.iter().all(|v| v.is_finite()));
         rep.dropped_non_finite = before - pts.len();
 
+        // Free space: where this sweep's beams crossed the robot's body band above the ground.
+        // Computed from every return, before the range and height filters: a beam that ends far
+        // away still proves the space it crossed near the robot empty.
+        let (rcx, rcy) = self.lattice.cell_of(robot.x_m, robot.y_m);
+        self.win.clear();
+        self.win.cx0 = rcx;
+        self.win.cy0 = rcy;
+        if let Some(o) = sensor {
+            rep.beams_marched = self.march_beams(&pts, o, robot);
+        }
+
         // 1-2. Height filter around the robot, isolated points.
         rep.dropped_height = filters::height_filter(
             &mut pts,
@@ -460,16 +599,40 @@ impl Mapper {
             self.cfg.phi_max_deg.to_radians(),
             self.cfg.max_range_m,
         );
-        rep.dropped_isolated = filters::isolated_point_filter(&mut pts, &self.cfg.isolated_pairs);
+        {
+            // Only points above their cell's lowest return this sweep are worth testing.
+            let li: Vec<Option<usize>> = pts
+                .iter()
+                .map(|p| {
+                    let (cx, cy) = self.cell_of(f64::from(p[0]), f64::from(p[1]));
+                    self.win.local(cx, cy)
+                })
+                .collect();
+            for (p, l) in pts.iter().zip(&li) {
+                if let Some(i) = *l {
+                    if self.win.zmin[i] == f32::INFINITY {
+                        self.win.touched.push(i);
+                    }
+                    self.win.zmin[i] = self.win.zmin[i].min(p[2]);
+                }
+            }
+            let test: Vec<bool> = pts
+                .iter()
+                .zip(&li)
+                .map(|(p, l)| l.is_none_or(|i| p[2] > self.win.zmin[i] + SUSPECT_ABOVE_M))
+                .collect();
+            rep.dropped_isolated =
+                filters::isolated_point_filter_where(&mut pts, &self.cfg.isolated_pairs, &test);
+            for &i in &self.win.touched {
+                self.win.zmin[i] = f32::INFINITY;
+            }
+            self.win.touched.clear();
+        }
 
         // 3. Binning with the per-cell ceiling, into the scratch window.
-        let (rcx, rcy) = self.lattice.cell_of(robot.x_m, robot.y_m);
-        self.win.clear();
-        self.win.cx0 = rcx;
-        self.win.cy0 = rcy;
         let mut cells_of = Vec::with_capacity(pts.len());
         for p in &pts {
-            let (cx, cy) = self.lattice.cell_of(f64::from(p[0]), f64::from(p[1]));
+            let (cx, cy) = self.cell_of(f64::from(p[0]), f64::from(p[1]));
             let li = self.win.local(cx, cy);
             cells_of.push(li);
             if let Some(i) = li {
@@ -519,15 +682,45 @@ impl Mapper {
         let epoch = (t_s / self.cfg.evidence_epoch_s).floor() as i64;
         let stamp = t_s.max(0.0).min(f64::from(u32::MAX)) as u32;
         let scan = self.scan_id;
+        let mut dirty = Vec::new();
+        if sensor.is_some() {
+            self.apply_free_space(&mut dirty, &mut rep);
+        }
         let touched = std::mem::take(&mut self.win.touched);
-        let mut dirty = Vec::with_capacity(touched.len());
+        dirty.reserve(touched.len());
         for &i in &touched {
             let (low, high) = (self.win.low[i], self.win.high[i]);
             if low.n == 0 && high.n == 0 {
                 continue;
             }
             let (cx, cy) = self.win.global(i);
+            let (ccx, ccy) = self.lattice.cell_center_m(cx, cy);
+            let range_m = norm2(ccx - robot.x_m, ccy - robot.y_m) as f32;
+            let far_factor = self.cfg.far_evidence_factor as f32;
+            let stale_s = self.cfg.evidence_stale_s as f32;
+            let grows = self.cfg.max_step_m as f32;
             let d = self.data_mut(cx, cy);
+            // A cell seen well from close by keeps that view against much poorer ones from far
+            // away (the moving vantage would otherwise let a sparse far glimpse replace a curb
+            // seen at 3 m). Changes are still caught: things that went by free space, things
+            // that came by the far view showing points higher than the cell held, anything once
+            // the close view is `evidence_stale_s` old.
+            let best = d.cur_range_m.min(d.prev_range_m);
+            // Unless the far view shows something new: standing up above what the cell held, or a
+            // surface lower than it (a cover gone from a hole).
+            let incoming = low.merged(&high);
+            let held = d.evidence();
+            let news = incoming.zmax > held.zmax + grows || incoming.zmin < held.zmin - grows;
+            let far = kind == Evidence::Scan
+                && d.cur.n > 0
+                && range_m > far_factor * best + 1.0
+                && !news
+                && (t_s as f32) - d.accepted_s < stale_s;
+            if far {
+                rep.far_skipped += 1;
+                continue;
+            }
+            d.accepted_s = t_s as f32;
             let changed = match kind {
                 Evidence::MapCloud => {
                     let m = low.merged(&high);
@@ -536,7 +729,9 @@ impl Mapper {
                     } else {
                         d.last_cloud = m;
                         d.cur = m;
+                        d.cur_range_m = range_m;
                         d.prev = Moments::default();
+                        d.prev_range_m = f32::INFINITY;
                         true
                     }
                 }
@@ -558,14 +753,21 @@ impl Mapper {
                     if add.n > 0 {
                         if epoch > d.epoch || d.cur.n == 0 {
                             d.prev = d.cur;
+                            d.prev_range_m = d.cur_range_m;
                             d.cur = Moments::default();
+                            d.cur_range_m = f32::INFINITY;
                             d.epoch = epoch;
                         }
                         d.cur = d.cur.merged(&add);
+                        d.cur_range_m = d.cur_range_m.min(range_m);
                     }
                     add.n > 0
                 }
             };
+            if sensor.is_none() {
+                // No beams to judge by: a map cloud's cells are taken as they come.
+                d.headroom = true;
+            }
             if d.last_scan != scan {
                 d.last_scan = scan;
                 d.hits = d.hits.saturating_add(1);
@@ -607,12 +809,161 @@ impl Mapper {
         self.take_tiles(t_s, true)
     }
 
+    /// Marks the cells of the window that this sweep's beams crossed inside the headroom band:
+    /// from `clear_low_m` up to `h_r - HEADROOM_TOP_MARGIN_M` above the cell's own ground (its
+    /// lowest return of this sweep, or its stored mean). Every `beam_stride`-th return is
+    /// marched, out to `processing_distance`. Returns the number of beams marched.
+    fn march_beams(&mut self, pts: &[[f32; 3]], o: [f64; 3], robot: &RobotPose) -> usize {
+        let l = self.cfg.grid_size_m;
+        let inv_l = 1.0 / l;
+        // The cells' ground: this sweep's lowest return per cell first.
+        for p in pts {
+            let (cx, cy) = (
+                floor_i64(f64::from(p[0]) * inv_l),
+                floor_i64(f64::from(p[1]) * inv_l),
+            );
+            if let Some(i) = self.win.local(cx, cy) {
+                if self.win.zmin[i] == f32::INFINITY {
+                    self.win.touched.push(i);
+                }
+                self.win.zmin[i] = self.win.zmin[i].min(p[2]);
+            }
+        }
+        let step = 0.7 * l;
+        let low = self.cfg.clear_low_m as f32;
+        let high = (self.cfg.h_r_m - HEADROOM_TOP_MARGIN_M) as f32;
+        let reach = self.cfg.processing_distance_m;
+        let zs = o[2];
+        let _ = robot;
+        let stride = self.cfg.beam_stride.max(1);
+        let min_n = self.rules.min_points();
+        let mut marched = 0usize;
+        for p in pts.iter().step_by(stride) {
+            let (px, py, pz) = (f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+            let (dx, dy) = (px - o[0], py - o[1]);
+            let d = norm2(dx, dy);
+            if d < 2.0 * l {
+                continue;
+            }
+            // Never the last cells (the return's own and the one it may straddle).
+            let f1 = (1.0 - 1.5 * l / d).min(reach / d);
+            if f1 <= 0.0 {
+                continue;
+            }
+            marched += 1;
+            let n = ((f1 * d) / step).ceil() as usize + 1;
+            let mut last = usize::MAX;
+            for k in 1..n {
+                let f = f1 * (k as f64) / ((n - 1) as f64);
+                let (x, y) = (o[0] + dx * f, o[1] + dy * f);
+                let (cx, cy) = (floor_i64(x * inv_l), floor_i64(y * inv_l));
+                let Some(i) = self.win.local(cx, cy) else {
+                    continue;
+                };
+                if i == last {
+                    continue;
+                }
+                last = i;
+                if self.win.pass_g[i].is_nan() {
+                    // First visit this sweep: the cell's ground, or infinity when unknown.
+                    let mut g = self.win.zmin[i];
+                    if let Some(dd) = self.data(cx, cy) {
+                        let e = dd.evidence();
+                        if e.n >= min_n {
+                            g = g.min(e.zmin);
+                        } else if dd.driven {
+                            g = g.min(dd.driven_z);
+                        }
+                    }
+                    self.win.pass_g[i] = g;
+                    self.win.pass_touched.push(i);
+                }
+                let g = self.win.pass_g[i];
+                let z = (zs + (pz - zs) * f) as f32;
+                let h = z - g;
+                if !(low..=high).contains(&h) {
+                    continue;
+                }
+                self.win.pass_n[i] = self.win.pass_n[i].saturating_add(1);
+                if z < self.win.pass_lo[i] {
+                    self.win.pass_lo[i] = z;
+                }
+            }
+        }
+        // The sweep's ground lookup is done: the normal binning starts from a clean slate.
+        for &i in &self.win.touched {
+            self.win.zmin[i] = f32::INFINITY;
+        }
+        self.win.touched.clear();
+        marched
+    }
+
+    /// Applies the sweep's free space: every crossed cell has seen headroom; a cell whose stored
+    /// points stand higher than where a beam just crossed it freely, with nothing of this sweep
+    /// up there, held something that has gone (a walker, a stray point): its old evidence is
+    /// dropped so this sweep's points rebuild it.
+    fn apply_free_space(&mut self, dirty: &mut Vec<(i64, i64)>, rep: &mut UpdateReport) {
+        let touched = std::mem::take(&mut self.win.pass_touched);
+        let min_passes = self.cfg.clear_min_beams.max(1);
+        let margin = self.cfg.clear_margin_m as f32;
+        for &i in &touched {
+            let (cx, cy) = self.win.global(i);
+            let (n, lo) = (self.win.pass_n[i], self.win.pass_lo[i]);
+            if n == 0 {
+                continue;
+            }
+            // This sweep's own returns in the cell up at the beams' height: still occupied.
+            let now_top = self.win.low[i].zmax.max(self.win.high[i].zmax);
+            let occupied_now = now_top >= lo - margin;
+            let Some(d) = self.data(cx, cy) else {
+                continue;
+            };
+            if d.driven {
+                continue;
+            }
+            let stale = n >= min_passes
+                && !occupied_now
+                && d.evidence().n > 0
+                && d.evidence().zmax > lo + margin;
+            let first_headroom = !d.headroom;
+            if stale || first_headroom {
+                let d = self.data_mut(cx, cy);
+                d.headroom = true;
+                if stale {
+                    d.cur = Moments::default();
+                    d.prev = Moments::default();
+                    d.pending = Moments::default();
+                    d.cur_range_m = f32::INFINITY;
+                    d.prev_range_m = f32::INFINITY;
+                    d.class_range_m = f32::INFINITY;
+                    rep.cleared_cells += 1;
+                }
+                dirty.push((cx, cy));
+            }
+        }
+        self.win.pass_touched = touched;
+    }
+
+    /// The ceiling `h_max2` of every touched cell: the lowest ground within
+    /// `ceiling_radius_cells`, from this sweep or (where this sweep's rings left a gap) from what
+    /// the cells showed before, plus `h_r` and the climb allowance to that cell. Without the stored
+    /// ground a tree canopy between two rings would set its own ceiling and come in as an obstacle.
     fn compute_ceilings(&mut self) {
         let r = i64::from(self.cfg.ceiling_radius_cells);
         let tan_phi = self.cfg.phi_max_deg.to_radians().tan() as f32;
         let l = self.cfg.grid_size_m as f32;
         let h_r = self.cfg.h_r_m as f32;
         let side = self.win.side as i64;
+        let min_n = self.rules.min_points();
+        let mut looked_up: Vec<usize> = Vec::new();
+        // The climb allowance per offset, once.
+        let span = (2 * r + 1) as usize;
+        let cone: Vec<f32> = (0..span * span)
+            .map(|k| {
+                let (dx, dy) = ((k % span) as i64 - r, (k / span) as i64 - r);
+                tan_phi * l * ((dx * dx + dy * dy) as f32).sqrt()
+            })
+            .collect();
         for k in 0..self.win.touched.len() {
             let i = self.win.touched[k];
             let (x, y) = ((i as i64) % side, (i as i64) / side);
@@ -622,18 +973,32 @@ impl Mapper {
                 if yy < 0 || yy >= side {
                     continue;
                 }
+                let row = ((dy + r) as usize) * span;
                 for dx in -r..=r {
                     let xx = x + dx;
                     if xx < 0 || xx >= side {
                         continue;
                     }
-                    let z = self.win.zmin[(yy * side + xx) as usize];
-                    if z.is_finite() {
-                        best = best.min(z + tan_phi * l * ((dx * dx + dy * dy) as f32).sqrt());
+                    let j = (yy * side + xx) as usize;
+                    let mut sg = self.win.stored_ground[j];
+                    if sg.is_nan() {
+                        let (cx, cy) = self.win.global(j);
+                        sg = match self.data(cx, cy) {
+                            Some(d) if d.evidence().n >= min_n => d.evidence().zmin,
+                            Some(d) if d.driven => d.driven_z,
+                            _ => f32::INFINITY,
+                        };
+                        self.win.stored_ground[j] = sg;
+                        looked_up.push(j);
                     }
+                    let z = self.win.zmin[j].min(sg);
+                    best = best.min(z + cone[row + (dx + r) as usize]);
                 }
             }
             self.win.ceiling[i] = best + h_r;
+        }
+        for j in looked_up {
+            self.win.stored_ground[j] = f32::NAN;
         }
     }
 
@@ -671,7 +1036,7 @@ impl Mapper {
         self.win.cy0 = rcy;
         let l = self.cfg.grid_size_m;
         let pd_cells = self.cfg.processing_distance_m / l;
-        let within = |cx: i64, cy: i64| ((cx - rcx) as f64).hypot((cy - rcy) as f64) <= pd_cells;
+        let within = |cx: i64, cy: i64| norm2((cx - rcx) as f64, (cy - rcy) as f64) <= pd_cells;
 
         // The cells to classify: dirty ones dilated by the 5x5 rule neighbourhood.
         let mut todo: Vec<(i64, i64)> = Vec::new();
@@ -732,8 +1097,12 @@ impl Mapper {
         let mut refreshed: Vec<(i64, i64)> = Vec::new();
         for &(cx, cy) in &todo {
             if !within(cx, cy) {
-                if !self.full && self.data(cx, cy).is_some() {
-                    self.pending.insert((cx, cy));
+                if self.data(cx, cy).is_some() {
+                    if !self.full {
+                        self.pending.insert((cx, cy));
+                    }
+                    // Not classified out here, but its height is news for the tile.
+                    refreshed.push((cx, cy));
                 }
                 continue;
             }
@@ -743,9 +1112,16 @@ impl Mapper {
                 Class::Traversable
             } else {
                 let nb = self.neighbourhood(cx, cy);
-                let v = self.rules.classify(&nb).class();
-                // A negative obstacle stays one until the cell is actually observed.
-                if v == Class::Unknown && old == Class::NegativeObstacle {
+                let mut v = self.rules.classify(&nb).class();
+                if v == Class::Traversable && !d.headroom {
+                    v = Class::Overhung;
+                }
+                // A negative obstacle stays one until the cell is actually observed, and the lip
+                // of a drop stays one while the unobserved drop beside it does.
+                if old == Class::NegativeObstacle
+                    && (v == Class::Unknown
+                        || (v == Class::Traversable && self.beside_drop(cx, cy)))
+                {
                     old
                 } else {
                     v
@@ -753,9 +1129,25 @@ impl Mapper {
             };
             rep.classified_cells += 1;
             refreshed.push((cx, cy));
+            // An obstacle judged from close by is not cleared by a verdict from much farther
+            // away, where a 10 cm face is a couple of sparse returns (free space still clears
+            // it: a wiped cell forgets where it was judged from).
+            let (px, py) = self.lattice.cell_center_m(cx, cy);
+            let dist = norm2(px - robot.x_m, py - robot.y_m) as f32;
+            let judged_at = d.class_range_m;
+            let far = dist > self.cfg.far_evidence_factor as f32 * judged_at + 1.0;
+            let new = if old.is_obstacle() && !new.is_obstacle() && far {
+                old
+            } else {
+                new
+            };
+            let dm = self.data_mut(cx, cy);
             if new != old {
-                self.data_mut(cx, cy).class = new;
+                dm.class = new;
+                dm.class_range_m = dist;
                 changed.push((cx, cy));
+            } else {
+                dm.class_range_m = dm.class_range_m.min(dist);
             }
         }
 
@@ -823,7 +1215,7 @@ impl Mapper {
             .round()
             .clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16;
         let (state, cost) = match d.class {
-            Class::Unknown | Class::Undecided => return Cell::UNKNOWN,
+            Class::Unknown | Class::Undecided | Class::Overhung => return Cell::UNKNOWN,
             Class::Obstacle | Class::NegativeObstacle => (CellState::Obstacle, 255),
             Class::Traversable => {
                 let near = self.offsets.iter().find(|(_, dx, dy)| {
@@ -860,7 +1252,7 @@ impl Mapper {
 
     fn write_live(&mut self, cx: i64, cy: i64, cell: Cell) {
         let (t, (c, r)) = self.lattice.tile_of_cell(cx, cy);
-        let Some(&s) = self.slot_of.get(&t) else {
+        let Some(s) = self.slot(t) else {
             return;
         };
         let n = self.lattice.tile_cells as usize;
@@ -917,7 +1309,7 @@ impl Mapper {
             for cx in x0..=x1 {
                 let (px, py) = self.lattice.cell_center_m(cx, cy);
                 let (dx, dy) = (px - robot.x_m, py - robot.y_m);
-                let dist = dx.hypot(dy);
+                let dist = norm2(dx, dy);
                 if dist < r_min || dist > r_max {
                     continue;
                 }
@@ -932,11 +1324,41 @@ impl Mapper {
                     continue;
                 }
                 let (ux, uy) = (dx / dist, dy / dist);
-                // The cell one step towards the robot must be observed, drivable ground.
-                let (bx, by) = self.lattice.cell_of(px - ux * l, py - uy * l);
-                let Some(edge) = self.data(bx, by).filter(|d| d.class == Class::Traversable) else {
+                // The neighbour nearest the robot must be observed, drivable ground (or the lip
+                // this pass marked before: observed ground too). A neighbour, not the cell one
+                // step along the ray: on an oblique ray that step often lands beside the edge.
+                let is_ground = |d: &CellData| {
+                    d.class == Class::Traversable
+                        || (d.class == Class::NegativeObstacle && (d.evidence().n > 0 || d.driven))
+                };
+                let mut best: Option<(f64, i64, i64)> = None;
+                for (ex, ey) in [
+                    (1, 0),
+                    (-1, 0),
+                    (0, 1),
+                    (0, -1),
+                    (1, 1),
+                    (1, -1),
+                    (-1, 1),
+                    (-1, -1),
+                ] {
+                    let (nx, ny) = (cx + ex, cy + ey);
+                    if !self.data(nx, ny).is_some_and(is_ground) {
+                        continue;
+                    }
+                    let (qx, qy) = self.lattice.cell_center_m(nx, ny);
+                    let dq = norm2(qx - robot.x_m, qy - robot.y_m);
+                    if dq < dist && best.is_none_or(|b| dq < b.0) {
+                        best = Some((dq, nx, ny));
+                    }
+                }
+                let Some((_, bx, by)) = best else {
                     continue;
                 };
+                let Some(edge) = self.data(bx, by) else {
+                    continue;
+                };
+                let edge_was_lip = edge.class == Class::NegativeObstacle;
                 let h_edge = if edge.evidence().n > 0 {
                     edge.evidence().stats().mean_m
                 } else {
@@ -953,22 +1375,69 @@ impl Mapper {
                         .filter(|q| q.evidence().n >= self.rules.min_points())
                     {
                         let h_q = q.evidence().stats().mean_m;
-                        drop = h_q < h_edge - drop_m - l * (k + 1) as f64 * tan_phi;
+                        // Lower than a step plus half the steepest drivable slope over the
+                        // unseen gap: a slope that steep would have been seen from here.
+                        drop = h_q < h_edge - drop_m - l * (k + 1) as f64 * 0.5 * tan_phi;
                         break;
                     }
+                }
+                // A drop seen from close by is not undone by a look from farther away (the
+                // shadow behind an edge grows with distance and blurs into a slope).
+                let marked_at = self.data(cx, cy).map_or(f32::INFINITY, |d| d.neg_range_m);
+                if !drop && old == Class::NegativeObstacle && dist as f32 > marked_at + 1.0 {
+                    continue;
                 }
                 let new = if drop {
                     Class::NegativeObstacle
                 } else {
                     Class::Unknown
                 };
+                if drop {
+                    let d = self.data_mut(cx, cy);
+                    d.neg_range_m = d.neg_range_m.min(dist as f32);
+                } else if old == Class::NegativeObstacle {
+                    self.data_mut(cx, cy).neg_range_m = f32::INFINITY;
+                }
                 if new != old {
                     self.data_mut(cx, cy).class = new;
                     changed.push((cx, cy));
                 }
+                // The edge cell holds the lip of the drop: a wheel there is over it. A lip whose
+                // drop turned out to be a ring gap goes back to what its own evidence says.
+                if drop {
+                    let e = self.data_mut(bx, by);
+                    if e.class == Class::Traversable && !e.driven {
+                        e.class = Class::NegativeObstacle;
+                        changed.push((bx, by));
+                    }
+                } else if edge_was_lip && !self.beside_drop(bx, by) {
+                    let mut v = self.rules.classify(&self.neighbourhood(bx, by)).class();
+                    let e = self.data_mut(bx, by);
+                    if e.driven {
+                        v = Class::Traversable;
+                    } else if v == Class::Traversable && !e.headroom {
+                        v = Class::Overhung;
+                    }
+                    e.class = v;
+                    changed.push((bx, by));
+                }
             }
         }
         changed
+    }
+
+    /// True when an 8-neighbour is a drop-off without evidence enough to be observed.
+    fn beside_drop(&self, cx: i64, cy: i64) -> bool {
+        (-1..=1).any(|dy| {
+            (-1..=1).any(|dx| {
+                (dx != 0 || dy != 0)
+                    && self.data(cx + dx, cy + dy).is_some_and(|n| {
+                        n.class == Class::NegativeObstacle
+                            && n.evidence().n < self.rules.min_points()
+                            && !n.driven
+                    })
+            })
+        })
     }
 
     fn neighbourhood(&self, cx: i64, cy: i64) -> Neighbourhood {
@@ -998,15 +1467,34 @@ impl Mapper {
 
     fn data(&self, cx: i64, cy: i64) -> Option<&CellData> {
         let (t, (c, r)) = self.lattice.tile_of_cell(cx, cy);
-        let s = *self.slot_of.get(&t)?;
+        let s = self.slot(t)?;
         Some(&self.slots[s].data[r as usize * self.lattice.tile_cells as usize + c as usize])
+    }
+
+    /// The slot of a tile; lookups come in runs within one tile, so the last answer is kept.
+    fn slot(&self, t: TileIndex) -> Option<usize> {
+        let (lt, ls) = self.last_slot.get();
+        if lt == t && ls != usize::MAX {
+            return Some(ls);
+        }
+        let s = *self.slot_of.get(&t)?;
+        self.last_slot.set((t, s));
+        Some(s)
+    }
+
+    /// The cell holding map point (x, y) (the lattice's rule without its per-call rounding).
+    fn cell_of(&self, x_m: f64, y_m: f64) -> (i64, i64) {
+        (
+            floor_i64(x_m * self.inv_cell_m),
+            floor_i64(y_m * self.inv_cell_m),
+        )
     }
 
     fn data_mut(&mut self, cx: i64, cy: i64) -> &mut CellData {
         let (t, (c, r)) = self.lattice.tile_of_cell(cx, cy);
         let n = self.lattice.tile_cells as usize;
-        let s = match self.slot_of.get(&t) {
-            Some(&s) => s,
+        let s = match self.slot(t) {
+            Some(s) => s,
             None => {
                 self.slots.push(TileSlot {
                     index: t,
@@ -1026,8 +1514,8 @@ impl Mapper {
     /// The final cell (after inflation) at a global lattice index.
     pub fn cell(&self, cx: i64, cy: i64) -> Cell {
         let (t, (c, r)) = self.lattice.tile_of_cell(cx, cy);
-        match self.slot_of.get(&t) {
-            Some(&s) => {
+        match self.slot(t) {
+            Some(s) => {
                 self.slots[s].live[r as usize * self.lattice.tile_cells as usize + c as usize]
             }
             None => Cell::UNKNOWN,
@@ -1113,6 +1601,17 @@ impl Mapper {
 }
 
 impl Mapper {
+    /// The rule that decides a cell now (diagnostics: why is this cell an obstacle?).
+    pub fn explain(&self, cx: i64, cy: i64) -> crate::classify::Verdict {
+        self.rules.classify(&self.neighbourhood(cx, cy))
+    }
+
+    /// Lowest and highest point of a cell's evidence (diagnostics, evaluation).
+    pub fn debug_range(&self, cx: i64, cy: i64) -> Option<(f32, f32)> {
+        let e = self.data(cx, cy)?.evidence();
+        (e.n > 0).then_some((e.zmin, e.zmax))
+    }
+
     /// Evidence statistics of one cell (diagnostics).
     pub fn debug_stats(&self, cx: i64, cy: i64) -> CellStats {
         self.data(cx, cy)

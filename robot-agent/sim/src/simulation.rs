@@ -40,6 +40,12 @@ pub struct SimConfig {
     pub odom: OdomConfig,
     /// GNSS receiver.
     pub gnss: GnssConfig,
+    /// Walkers wait while walking on for `walker_lookahead_s` would bring them within this gap
+    /// of the robot's footprint (people step around or wait for a robot; they do not walk into
+    /// it). 0 turns yielding off: walkers then follow their scripts blindly, metres.
+    pub walker_yield_gap_m: f64,
+    /// How far ahead in time a walker looks for the robot, seconds.
+    pub walker_lookahead_s: f64,
 }
 
 impl Default for SimConfig {
@@ -52,6 +58,8 @@ impl Default for SimConfig {
             depth: DepthConfig::default(),
             odom: OdomConfig::default(),
             gnss: GnssConfig::default(),
+            walker_yield_gap_m: 0.4,
+            walker_lookahead_s: 1.0,
         }
     }
 }
@@ -90,6 +98,11 @@ pub struct Simulation {
     dropped_scans: u64,
     /// Recent base poses (time, map <- base_link), for poses at past stamps.
     history: std::collections::VecDeque<(f64, Isometry3<f64>)>,
+    /// Each walker's own clock (seconds of its script walked): behind `t_s` by the time it
+    /// waited for the robot.
+    walker_clock: Vec<f64>,
+    /// Total seconds walkers spent waiting for the robot.
+    walker_wait_s: f64,
 }
 
 impl Simulation {
@@ -112,7 +125,6 @@ impl Simulation {
         let rng =
             |k: u64| SmallRng::seed_from_u64(cfg.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ k);
         Self {
-            world,
             plant,
             lidar,
             odom,
@@ -127,6 +139,9 @@ impl Simulation {
             datum,
             dropped_scans: 0,
             history: std::collections::VecDeque::from([(0.0, plant_pose0)]),
+            walker_clock: vec![0.0; world.walker_count()],
+            walker_wait_s: 0.0,
+            world,
             cfg,
         }
     }
@@ -145,7 +160,16 @@ impl Simulation {
             let t0 = self.t_s;
             let t1 = t0 + h;
             let base0 = self.plant.pose3();
-            let walkers1 = self.world.walkers_at(t1);
+            let clocks0 = self.walker_clock.clone();
+            self.advance_walkers(h);
+            let walkers1 = self.world.walkers_at_clocks(&self.walker_clock);
+            let clocks_at = |f: f64| -> Vec<f64> {
+                clocks0
+                    .iter()
+                    .zip(&self.walker_clock)
+                    .map(|(a, b)| a + (b - a) * f)
+                    .collect()
+            };
             out.collisions.extend(self.plant.step(
                 &self.world,
                 &walkers1,
@@ -158,7 +182,7 @@ impl Simulation {
             if self.cfg.lidar.enabled {
                 let mid: Vec<Solid> = self
                     .world
-                    .walkers_at(0.5 * (t0 + t1))
+                    .walkers_at_clocks(&clocks_at(0.5))
                     .iter()
                     .map(WalkerState::solid)
                     .collect();
@@ -184,7 +208,7 @@ impl Simulation {
                 let cam = base0.lerp_slerp(&base1, f) * self.cfg.robot.depth_camera.isometry();
                 let ws: Vec<Solid> = self
                     .world
-                    .walkers_at(self.next_depth_t_s)
+                    .walkers_at_clocks(&clocks_at(f))
                     .iter()
                     .map(WalkerState::solid)
                     .collect();
@@ -295,7 +319,45 @@ impl Simulation {
 
     /// Walkers at the current time.
     pub fn walkers(&self) -> Vec<WalkerState> {
-        self.world.walkers_at(self.t_s)
+        self.world.walkers_at_clocks(&self.walker_clock)
+    }
+
+    /// Total seconds walkers have waited for the robot so far.
+    pub fn walker_wait_s(&self) -> f64 {
+        self.walker_wait_s
+    }
+
+    /// Moves every walker on by `h` seconds of its script, unless walking on would bring it
+    /// within `walker_yield_gap_m` of the robot (closer than it is now): then it waits.
+    fn advance_walkers(&mut self, h: f64) {
+        let gap = self.cfg.walker_yield_gap_m;
+        let p = self.plant.pose2();
+        let foot = crate::world::Obb {
+            cx: p.x_m,
+            cy: p.y_m,
+            hx: 0.5 * self.cfg.robot.length_m,
+            hy: 0.5 * self.cfg.robot.width_m,
+            yaw: p.yaw_rad,
+        };
+        for (i, c) in self.walker_clock.iter_mut().enumerate() {
+            if gap > 0.0 {
+                let (Some(now), Some(ahead)) = (
+                    self.world.walker_position(i, *c),
+                    self.world
+                        .walker_position(i, *c + self.cfg.walker_lookahead_s),
+                ) else {
+                    continue;
+                };
+                let d_now = foot.distance_to(now[0], now[1]);
+                let d_ahead = foot.distance_to(ahead[0], ahead[1]);
+                let r = self.world.walker_radius(i);
+                if d_ahead - r < gap && d_ahead < d_now {
+                    self.walker_wait_s += h;
+                    continue;
+                }
+            }
+            *c += h;
+        }
     }
 
     /// Collisions reported since the start.

@@ -1216,17 +1216,34 @@ impl World {
         &self.solids
     }
 
+    /// Body radius of walker `i` (0 when there is none), metres.
+    pub fn walker_radius(&self, i: usize) -> f64 {
+        self.walkers.get(i).map_or(0.0, |w| w.radius_m)
+    }
+
+    /// Where walker `i` is after walking `t_s` seconds of its script, if it exists.
+    pub fn walker_position(&self, i: usize, t_s: f64) -> Option<[f64; 2]> {
+        self.walkers.get(i).map(|w| w.position(t_s))
+    }
+
     /// Number of walkers.
     pub fn walker_count(&self) -> usize {
         self.walkers.len()
     }
 
-    /// Walkers at time `t_s`, in scenario order.
+    /// Walkers at time `t_s`, in scenario order, as if none had ever stopped.
     pub fn walkers_at(&self, t_s: f64) -> Vec<WalkerState> {
+        self.walkers_at_clocks(&vec![t_s; self.walkers.len()])
+    }
+
+    /// Walkers with their own clocks: walker `i` is where its script puts it after walking for
+    /// `clocks[i]` seconds (a walker that waited for the robot is behind its script).
+    pub fn walkers_at_clocks(&self, clocks: &[f64]) -> Vec<WalkerState> {
         self.walkers
             .iter()
+            .zip(clocks)
             .enumerate()
-            .map(|(id, w)| {
+            .map(|(id, (w, &t_s))| {
                 let [x, y] = w.position(t_s);
                 WalkerState {
                     id,

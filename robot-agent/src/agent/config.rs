@@ -160,7 +160,8 @@ impl AgentConfig {
         mapper.footprint_length_m = profile.length_m;
         mapper.footprint_width_m = profile.width_m;
         mapper.h_r_m = profile.height_m;
-        mapper.max_step_m = profile.max_step_m;
+        // mapper.max_step_m stays the mapper's own: it is the step test's threshold, set below
+        // the profile's unclimbable step so that a 10 cm curb measured at 9 cm still counts.
         Self {
             gnss_antenna_xyz_m: profile.gnss.primary_xyz_m,
             profile,

@@ -218,7 +218,10 @@ impl Agent {
         let est_p = est.iso.translation.vector;
         let ant = self.cfg.gnss_antenna_xyz_m;
         let meas = enu - est.iso.rotation * Vector3::new(ant[0], ant[1], ant[2]);
-        let d = meas - est_p;
+        // Horizontal only: pulling the height fix by fix would lift and drop whole sweeps
+        // against each other (rings of false steps); SLAM's own height is consistent.
+        let mut d = meas - est_p;
+        d.z = 0.0;
         if d.xy().norm() > cfg.fusion_gate_m {
             self.gnss_rejected += 1;
             return;
@@ -261,7 +264,11 @@ impl Agent {
                 let enu = local.lla_to_enu(&fix.lla);
                 // The fix is the primary antenna; base_link is below/behind it.
                 let ant = self.cfg.gnss_antenna_xyz_m;
-                let rot = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw);
+                // The baseline's tilt gives the pitch (one baseline: no roll), so the map's z
+                // is up along the heading from the start rather than tilted with the ground.
+                let pitch = self.gnss.pitch_rad(t_s).unwrap_or(0.0);
+                let rot = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw)
+                    * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), pitch);
                 let base = enu - rot * Vector3::new(ant[0], ant[1], ant[2]);
                 tracing::info!(
                     "map frame: ENU at datum {:.7}, {:.7}, {:.2} m; start pose ({:.2}, {:.2}) yaw {:.1} deg from GNSS",
@@ -332,10 +339,17 @@ impl Agent {
             z_m: pose.iso.translation.vector.z,
             yaw_rad: pose.planar.yaw_rad,
         };
-        match self
-            .mapper
-            .update_scan(scan, &pose_map_lidar, &robot, scan.stamp_s)
-        {
+        // The de-skewed sweep when SLAM made one: the raw one is smeared by the motion.
+        let deskewed = out.deskewed.map(|points| Scan {
+            stamp_s: scan.stamp_s,
+            points,
+        });
+        match self.mapper.update_scan(
+            deskewed.as_ref().unwrap_or(scan),
+            &pose_map_lidar,
+            &robot,
+            scan.stamp_s,
+        ) {
             Ok(u) => {
                 rep.classified_cells = u.classified_cells;
                 self.pending_tiles.extend(u.tiles);

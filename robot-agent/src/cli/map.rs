@@ -1,6 +1,7 @@
 //! `robot-agent map`: evaluate the traversability mapper in the simulator, replay recorded
 //! sequences (KITTI layout) through it, and render the grid.
 
+use crate::run::map_eval;
 use anyhow::{bail, Context};
 use common::grid::encode_tile;
 use mapping::render::render_png;
@@ -30,7 +31,7 @@ enum MapCommand {
 
 #[derive(Debug, clap::Args)]
 struct EvalArgs {
-    /// Scenario TOML (config/scenarios/*.toml).
+    /// Scenario TOML (config/scenarios/*.toml); its `[drive]` polyline is driven.
     #[arg(long)]
     scenario: PathBuf,
     /// Map with the simulator's true poses instead of SLAM.
@@ -39,22 +40,49 @@ struct EvalArgs {
     /// Print the summary as one JSON object.
     #[arg(long)]
     json: bool,
-    /// Mapper configuration (TOML); defaults (config/mapper.toml values) when absent.
+    /// Mapper configuration (TOML); config/mapper.toml when absent.
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Simulator seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Stop after this much simulated time, seconds.
+    #[arg(long, default_value_t = 1200.0)]
+    max_duration: f64,
+    /// Also draw the final grid into this PNG.
+    #[arg(long)]
+    png: Option<PathBuf>,
+    /// Draw the wrong cells into this PNG: missed solids red, missed steps orange, missed
+    /// slopes yellow, missed holes magenta, false obstacles blue, false drop-offs cyan, correct
+    /// observed cells grey.
+    #[arg(long)]
+    errors_png: Option<PathBuf>,
+    /// Print the mapper's evidence and verdicts around these map points (`X,Y`, repeatable):
+    /// why a cell is what it is.
+    #[arg(long, value_name = "X,Y", allow_hyphen_values = true)]
+    probe: Vec<String>,
 }
 
 #[derive(Debug, clap::Args)]
 struct RenderArgs {
-    /// Scenario TOML.
+    /// Scenario TOML; its `[drive]` polyline is driven and mapped.
     #[arg(long)]
     scenario: PathBuf,
     /// Output PNG.
     #[arg(long)]
     png: PathBuf,
-    /// Mapper configuration (TOML).
+    /// Mapper configuration (TOML); config/mapper.toml when absent.
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Map with the simulator's true poses instead of SLAM.
+    #[arg(long)]
+    use_truth_poses: bool,
+    /// Pixels per cell.
+    #[arg(long, default_value_t = 3)]
+    px: u32,
+    /// Simulator seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
 }
 
 #[derive(Debug, clap::Args)]
@@ -109,22 +137,217 @@ fn load_config(path: Option<&Path>) -> anyhow::Result<Config> {
     Ok(cfg)
 }
 
-fn eval(a: EvalArgs) -> anyhow::Result<()> {
-    let _ = (
-        &a.scenario,
-        a.use_truth_poses,
-        a.json,
-        load_config(a.config.as_deref())?,
+/// The mapper config: the file given, else the shipped config/mapper.toml, else the defaults.
+fn mapper_config(path: Option<&Path>) -> anyhow::Result<Config> {
+    match path {
+        Some(p) => load_config(Some(p)),
+        None => {
+            let shipped = crate::agent::config::default_config_dir().join("mapper.toml");
+            if shipped.exists() {
+                load_config(Some(&shipped))
+            } else {
+                Ok(Config::default())
+            }
+        }
+    }
+}
+
+fn eval_options(
+    scenario: &Path,
+    config: Option<&Path>,
+    use_truth_poses: bool,
+    seed: u64,
+) -> anyhow::Result<(sim::Scenario, map_eval::MapEvalOptions)> {
+    let scenario = sim::Scenario::load(scenario)?;
+    let dir = crate::agent::config::default_config_dir();
+    let agent = crate::agent::AgentConfig::load_dir(&dir)
+        .with_context(|| format!("loading {}", dir.display()))?;
+    let opts = map_eval::MapEvalOptions {
+        seed,
+        use_truth_poses,
+        mapper: mapper_config(config)?,
+        slam: agent.slam,
+        profile: agent.profile,
+        ..Default::default()
+    };
+    Ok((scenario, opts))
+}
+
+fn run_eval(
+    scenario: &sim::Scenario,
+    opts: &map_eval::MapEvalOptions,
+) -> anyhow::Result<(map_eval::MapEvalReport, Mapper)> {
+    let bar = indicatif::ProgressBar::new(100);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("map eval {bar:40} {pos}% {msg}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    bail!(
-        "map eval: the simulator crate does not expose its driving API yet (sim::Simulation::new, \
-         step, sim::drive::PathDriver); the mapper side is ready, see `map replay` for real data"
-    )
+    let r = map_eval::run(scenario, opts, |p| {
+        bar.set_position((p.done * 100.0) as u64);
+        bar.set_message(format!("{:.0} s simulated", p.t_s));
+    });
+    bar.finish_and_clear();
+    r
+}
+
+fn draw(mapper: &Mapper, png: &Path, px: u32) -> anyhow::Result<(u32, u32)> {
+    let file = std::fs::File::create(png).with_context(|| format!("creating {}", png.display()))?;
+    Ok(render_png(
+        mapper,
+        None,
+        px,
+        &[],
+        std::io::BufWriter::new(file),
+    )?)
+}
+
+/// The wrong cells over the observed ones, 3 px per cell, north up.
+fn draw_errors(mapper: &Mapper, r: &map_eval::MapEvalReport, png: &Path) -> anyhow::Result<()> {
+    use map_eval::ErrorKind as K;
+    let ((x0, y0), (x1, y1)) = mapper.bounds().context("the map is empty")?;
+    let (w, h) = ((x1 - x0 + 1) as usize, (y1 - y0 + 1) as usize);
+    let px = 3usize;
+    let mut img = vec![24u8; w * h * px * px * 3];
+    let mut put = |cx: i64, cy: i64, rgb: [u8; 3]| {
+        let (i, j) = ((cx - x0) as usize, (y1 - cy) as usize);
+        for dy in 0..px {
+            for dx in 0..px {
+                let o = ((j * px + dy) * w * px + i * px + dx) * 3;
+                img[o..o + 3].copy_from_slice(&rgb);
+            }
+        }
+    };
+    for cy in y0..=y1 {
+        for cx in x0..=x1 {
+            match mapper.class(cx, cy) {
+                mapping::Class::Traversable => put(cx, cy, [70, 70, 70]),
+                mapping::Class::Obstacle | mapping::Class::NegativeObstacle => {
+                    put(cx, cy, [130, 130, 130])
+                }
+                _ => {}
+            }
+        }
+    }
+    for &(cx, cy, k) in &r.error_cells {
+        let rgb = match k {
+            K::MissedSolid => [230, 30, 30],
+            K::MissedStep => [255, 150, 0],
+            K::MissedSlope => [240, 240, 0],
+            K::MissedHole => [230, 0, 230],
+            K::FalseObstacle => [40, 110, 255],
+            K::FalseNegativeObstacle => [0, 230, 230],
+        };
+        put(cx, cy, rgb);
+    }
+    let file = std::fs::File::create(png).with_context(|| format!("creating {}", png.display()))?;
+    let mut enc = png::Encoder::new(
+        std::io::BufWriter::new(file),
+        (w * px) as u32,
+        (h * px) as u32,
+    );
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    enc.write_header()?.write_image_data(&img)?;
+    Ok(())
+}
+
+/// Prints a 7 x 7 block of cells around a map point: class, verdict, evidence, truth.
+fn probe(
+    mapper: &Mapper,
+    scenario: &sim::Scenario,
+    opts: &map_eval::MapEvalOptions,
+    at: &str,
+) -> anyhow::Result<()> {
+    let v: Vec<f64> = at
+        .split(',')
+        .map(|t| t.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("--probe {at:?}: want X,Y"))?;
+    anyhow::ensure!(v.len() == 2, "--probe {at:?}: want X,Y");
+    let lattice = mapper.lattice();
+    let (cx, cy) = lattice.cell_of(v[0], v[1]);
+    let world = sim::World::new(scenario);
+    let truth = world.truth_labels(
+        &lattice,
+        cx - 3,
+        cy - 3,
+        7,
+        7,
+        &sim::LabelParams::from_profile(&opts.profile),
+    );
+    eprintln!(
+        "probe ({}, {}) = cell ({cx}, {cy}); rows north to south",
+        v[0], v[1]
+    );
+    for y in (cy - 3..=cy + 3).rev() {
+        for x in cx - 3..=cx + 3 {
+            let st = mapper.debug_stats(x, y);
+            let t = truth.get(x, y).copied().unwrap_or_default();
+            eprintln!(
+                "  ({x:4},{y:4}) {:<13} {:<13} n {:3} mean {:7.3} sd {:.3} max {:7.3} | truth {:?} reasons {} step {:.3} h {:.3}",
+                format!("{:?}", mapper.class(x, y)),
+                format!("{:?}", mapper.explain(x, y)),
+                st.n,
+                st.mean_m,
+                st.var_m2.sqrt(),
+                st.max_m,
+                t.state,
+                t.reasons,
+                t.step_m,
+                t.height_m
+            );
+        }
+        eprintln!();
+    }
+    Ok(())
+}
+
+fn eval(a: EvalArgs) -> anyhow::Result<()> {
+    let (scenario, mut opts) =
+        eval_options(&a.scenario, a.config.as_deref(), a.use_truth_poses, a.seed)?;
+    opts.max_duration_s = a.max_duration;
+    let (r, mapper) = run_eval(&scenario, &opts)?;
+    if let Some(png) = &a.png {
+        draw(&mapper, png, 3)?;
+    }
+    if let Some(png) = &a.errors_png {
+        draw_errors(&mapper, &r, png)?;
+    }
+    for p in &a.probe {
+        probe(&mapper, &scenario, &opts, p)?;
+    }
+    if a.json {
+        println!("{}", serde_json::to_string(&r)?);
+    } else {
+        eprintln!(
+            "{}: {} scans over {:.0} m in {:.0} s; {} curb cells, {} undecided; walker cells {} ({} still obstacles); tiles {} ({:.0} B mean, {:.0} B/s); SLAM failures {} max error {:.3} m (z {:.3} m, tilt {:.2} deg max {:.3} mean); collisions {}",
+            r.scenario, r.scans, r.path_m, r.duration_s, r.curb_cells, r.undecided_cells,
+            r.walker_cells, r.walker_false_obstacles, r.tiles_published, r.mean_tile_bytes,
+            r.tile_bytes_per_s, r.slam_failures, r.slam_max_error_m, r.slam_max_z_error_m,
+            r.slam_max_tilt_error_deg, r.slam_mean_tilt_error_deg, r.collisions
+        );
+        eprintln!(
+            "errors: {:?}; overhung {} cleared {} one-sided steps {}",
+            r.errors, r.overhung_cells, r.cleared_cells, r.one_sided_steps
+        );
+        println!(
+            "cells {} accuracy {:.4} obstacle_recall {:.4} false_obstacle_rate {:.4} curb5_10_recall {:.4} ms_per_update {:.2}",
+            r.cells, r.accuracy, r.obstacle_recall, r.false_obstacle_rate, r.curb5_10_recall, r.ms_per_update
+        );
+    }
+    Ok(())
 }
 
 fn render(a: RenderArgs) -> anyhow::Result<()> {
-    let _ = (&a.scenario, &a.png, load_config(a.config.as_deref())?);
-    bail!("map render: the simulator crate does not expose its driving API yet; use `map replay DIR --png OUT` on a recorded folder")
+    let (scenario, opts) =
+        eval_options(&a.scenario, a.config.as_deref(), a.use_truth_poses, a.seed)?;
+    let (r, mapper) = run_eval(&scenario, &opts)?;
+    let (w, h) = draw(&mapper, &a.png, a.px)?;
+    println!(
+        "{}",
+        serde_json::json!({"scenario": r.scenario, "png": a.png.display().to_string(), "width_px": w, "height_px": h, "scans": r.scans})
+    );
+    Ok(())
 }
 
 fn replay(a: ReplayArgs) -> anyhow::Result<()> {

@@ -46,6 +46,10 @@ pub struct MissionArgs {
     /// Start pose `X,Y,YAW_DEG` instead of the scenario's.
     #[arg(long, value_name = "X,Y,YAW_DEG", allow_hyphen_values = true)]
     pub start: Option<String>,
+    /// Headless goal: draw the robot's traversability map with the driven path (truth) and the
+    /// goal into this PNG at the end.
+    #[arg(long, value_name = "FILE")]
+    pub png: Option<PathBuf>,
 }
 
 impl MissionArgs {
@@ -130,7 +134,22 @@ pub fn run_headless(scenario: &sim::Scenario, args: &MissionArgs, seed: u64) -> 
         }
         _ => anyhow::bail!("give one of --goal, --goal-gnss, --teach-repeat"),
     };
-    let rep = run::run_goal(scenario, cfg, target, &opts)?;
+    let (rep, rig) = run::run_goal_rig(scenario, cfg, target, &opts)?;
+    if let Some(png) = &args.png {
+        let file =
+            std::fs::File::create(png).with_context(|| format!("creating {}", png.display()))?;
+        let mut path = rep.trajectory_m.clone();
+        path.push(rep.final_m);
+        mapping::render::render_png(
+            rig.agent.mapper(),
+            None,
+            3,
+            &path,
+            std::io::BufWriter::new(file),
+        )
+        .with_context(|| format!("drawing {}", png.display()))?;
+        eprintln!("map drawn to {}", png.display());
+    }
     eprintln!(
         "{}: {:.1} s simulated, {:.1} m driven, {} replans ({:.2} ms mean), {:.1}x real time",
         rep.outcome,

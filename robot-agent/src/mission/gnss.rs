@@ -61,6 +61,8 @@ pub struct GnssTracker {
     fix: Option<Fix>,
     /// (arrival time, yaw degrees clockwise from north)
     heading: Option<(f64, f64)>,
+    /// (arrival time, baseline tilt degrees, positive with the primary (front) antenna higher)
+    tilt: Option<(f64, f64)>,
     /// Sentences that failed to parse.
     pub bad_sentences: u32,
     /// Last parse error, for the status.
@@ -102,6 +104,9 @@ impl GnssTracker {
                     if let Some(yaw) = a.yaw_deg {
                         self.heading = Some((t_s, yaw));
                     }
+                    if let Some(tilt) = a.tilt_deg {
+                        self.tilt = Some((t_s, tilt));
+                    }
                 }
                 Ok(())
             }
@@ -139,6 +144,14 @@ impl GnssTracker {
             .map(|(_, yaw_cw_north_deg)| {
                 common::geom::wrap_angle((90.0 - yaw_cw_north_deg).to_radians())
             })
+    }
+
+    /// Pitch of base_link from the antenna baseline's tilt, radians (positive = nose down, the
+    /// right-handed rotation about y), if fresh.
+    pub fn pitch_rad(&self, t_s: f64) -> Option<f64> {
+        self.tilt
+            .filter(|(t, _)| t_s - t <= self.cfg.fix_timeout_s)
+            .map(|(_, tilt_deg)| -tilt_deg.to_radians())
     }
 
     /// True when an RTK fixed fix with enough satellites and a heading are both fresh: the map

@@ -5,6 +5,7 @@
 //! NMEA), never its truth; the truth is used only to score the outcome.
 
 pub mod live;
+pub mod map_eval;
 
 use crate::agent::{Agent, AgentConfig, Cmd};
 use common::geom::Pose2;
@@ -72,6 +73,8 @@ pub struct MissionReport {
     pub realtime_factor: f64,
     /// SLAM fallbacks to the prior.
     pub slam_failures: u32,
+    /// Worst localisation errors against the truth.
+    pub localisation: LocalisationError,
     /// Truth trajectory, decimated to 0.5 m, for scenario checks.
     pub trajectory_m: Vec<(f64, f64)>,
 }
@@ -111,6 +114,8 @@ pub struct Rig {
     scan: Stat,
     /// Collisions so far (truth).
     pub collisions: u32,
+    /// Worst localisation errors so far (agent pose vs truth, right after each scan).
+    pub loc: LocalisationError,
     driven_m: f64,
     last_truth: (f64, f64),
     trajectory: Vec<(f64, f64)>,
@@ -150,6 +155,7 @@ impl Rig {
             plan: Stat::default(),
             scan: Stat::default(),
             collisions: 0,
+            loc: LocalisationError::default(),
             driven_m: 0.0,
             last_truth: (t.x, t.y),
             trajectory: vec![(t.x, t.y)],
@@ -183,6 +189,28 @@ impl Rig {
             self.agent.on_scan(scan);
             self.scan.add(t0.elapsed().as_secs_f64() * 1e3);
             ev.scan = true;
+            // The agent's localisation against the truth, right after the scan.
+            if let Some(est) = self.agent.pose_now() {
+                let truth = self.sim.truth_pose();
+                let d = est.iso.translation.vector - truth.translation.vector;
+                self.loc.xy_max_m = self.loc.xy_max_m.max(d.xy().norm());
+                self.loc.z_max_m = self.loc.z_max_m.max(d.z.abs());
+                let tilt = (est.iso.rotation * nalgebra::Vector3::z())
+                    .angle(&(truth.rotation * nalgebra::Vector3::z()))
+                    .to_degrees();
+                self.loc.tilt_max_deg = self.loc.tilt_max_deg.max(tilt);
+            }
+        }
+        for c in &out.collisions {
+            tracing::warn!(
+                "collision at {:.2} s: {:?} (object {}) at ({:.2}, {:.2}), detail {:.3}",
+                c.t_s,
+                c.kind,
+                c.object,
+                c.x_m,
+                c.y_m,
+                c.detail
+            );
         }
         self.collisions += out.collisions.len() as u32;
         ev.collisions = out.collisions.len() as u32;
@@ -216,6 +244,17 @@ impl Rig {
     }
 }
 
+/// Worst localisation errors of a run, measured against the simulator's truth.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct LocalisationError {
+    /// Horizontal position, metres.
+    pub xy_max_m: f64,
+    /// Height, metres.
+    pub z_max_m: f64,
+    /// Angle between the estimated and the true up axis, degrees.
+    pub tilt_max_deg: f64,
+}
+
 /// What one [`Rig::step`] did.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct StepEvents {
@@ -234,6 +273,16 @@ pub fn run_goal(
     target: GoalTarget,
     opts: &HeadlessOptions,
 ) -> anyhow::Result<MissionReport> {
+    run_goal_rig(scenario, cfg, target, opts).map(|(r, _)| r)
+}
+
+/// [`run_goal`], also handing back the rig (the agent's map, the simulator) for rendering.
+pub fn run_goal_rig(
+    scenario: &sim::Scenario,
+    cfg: AgentConfig,
+    target: GoalTarget,
+    opts: &HeadlessOptions,
+) -> anyhow::Result<(MissionReport, Rig)> {
     let mut rig = Rig::new(scenario, cfg, opts, "sim")?;
     let wall = Instant::now();
     // Let the first scans arrive so the map frame is anchored before the goal is converted.
@@ -282,7 +331,7 @@ pub fn run_goal(
         .goal()
         .map(|g| g.goal_map)
         .unwrap_or(goal_m);
-    Ok(MissionReport {
+    let report = MissionReport {
         outcome: if rig.collisions > 0 {
             "collision".into()
         } else {
@@ -301,8 +350,10 @@ pub fn run_goal(
         scan_ms_mean: rig.scan.mean(),
         realtime_factor: rig.t_s() / wall.elapsed().as_secs_f64().max(1e-9),
         slam_failures: rig.agent.status(rig.t_s()).slam.failures,
+        localisation: rig.loc,
         trajectory_m: rig.trajectory.clone(),
-    })
+    };
+    Ok((report, rig))
 }
 
 /// The report of a teach-and-repeat run (`robot-agent sim --headless --teach-repeat`).
