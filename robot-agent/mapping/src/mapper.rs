@@ -426,8 +426,9 @@ const HEADROOM_TOP_MARGIN_M: f64 = 0.2;
 /// Points this far above their cell's lowest return in the sweep go through the isolated-point
 /// filter; lower ones are ground and cannot raise an obstacle on their own, metres.
 const SUSPECT_ABOVE_M: f32 = 0.04;
-/// Tiles are republished at most this often (architecture.md: at most 2 Hz per tile).
-const TILE_MIN_INTERVAL_S: f64 = 0.5;
+/// Tiles are republished at most this often (architecture.md: at most 2 Hz per tile; 1 Hz
+/// halves the bandwidth while driving, and the planner reads the live grid, not tiles).
+const TILE_MIN_INTERVAL_S: f64 = 1.0;
 /// The published height only follows the live one when it moved this much: sensor noise on a
 /// cell mean must not republish a tile every scan.
 const HEIGHT_HYSTERESIS_CM: i16 = 3;

@@ -193,6 +193,19 @@ mod tests {
     }
 
     #[test]
+    fn shipped_control_and_mission_files_are_the_code_defaults() {
+        // The files document the defaults; a change to one must be made to both.
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../config");
+        let control: control::Config = load(&dir, "control.toml").unwrap();
+        assert_eq!(control, control::Config::default());
+        let mission: MissionFile = load(&dir, "mission.toml").unwrap();
+        assert_eq!(mission.navigate, NavConfig::default());
+        assert_eq!(mission.teach, TeachConfig::default());
+        assert_eq!(mission.repeat, RepeatConfig::default());
+        assert_eq!(mission.gnss, GnssConfig::default());
+    }
+
+    #[test]
     fn unknown_keys_name_the_file() {
         let d = tempfile::tempdir().unwrap();
         std::fs::write(d.path().join("mission.toml"), "bogus = 1\n").unwrap();

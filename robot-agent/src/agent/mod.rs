@@ -75,6 +75,8 @@ pub struct Agent {
     recorder: Option<RouteRecorder>,
     gnss: GnssTracker,
     follower: control::Follower,
+    /// The same controller tuned for taught routes (shorter look-ahead, earlier turn in place).
+    route_tracker: control::Follower,
     /// Set at the first scan.
     anchor: Option<Anchor>,
     /// Pose and odometry at the last SLAM update, for interpolation between scans.
@@ -129,6 +131,11 @@ impl Agent {
             recorder: None,
             gnss: GnssTracker::new(cfg.gnss.clone()),
             follower: control::Follower::new(cfg.control.clone()),
+            route_tracker: control::Follower::new(control::Config {
+                lookahead_m: cfg.repeat.lookahead_m,
+                rotate_in_place_rad: cfg.repeat.rotate_in_place_rad,
+                ..cfg.control.clone()
+            }),
             anchor: None,
             at_scan: None,
             map_from_odom: None,
@@ -748,9 +755,9 @@ impl Agent {
                 let path = self
                     .repeat
                     .as_ref()
-                    .map(|(f, _)| f.path_ahead(&pose.planar))
+                    .map(|(f, _)| f.follow_path(&pose.planar))
                     .unwrap_or_default();
-                self.follow(&pose.planar, &path, stop_ahead, true)
+                self.follow_route(&pose.planar, &path, stop_ahead)
             }
             _ => Cmd::default(),
         };
@@ -769,6 +776,24 @@ impl Agent {
             self.safety.clearance_m,
             to_end,
         );
+        self.gate(c, stop_ahead)
+    }
+
+    fn follow_route(&mut self, pose: &Pose2, path: &[(f64, f64)], stop_ahead: bool) -> Cmd {
+        if path.len() < 2 {
+            return Cmd::default();
+        }
+        let c = self.route_tracker.command(
+            pose,
+            path,
+            self.speed_limit_mps,
+            self.safety.clearance_m,
+            true,
+        );
+        self.gate(c, stop_ahead)
+    }
+
+    fn gate(&self, c: control::FollowerCmd, stop_ahead: bool) -> Cmd {
         let mut cmd = Cmd {
             v_mps: c.v_mps,
             omega_rps: c.omega_rps,

@@ -37,8 +37,18 @@ pub struct RepeatConfig {
     /// Rejoin points closer than this to the blockage are not used (the robot body needs room
     /// to turn back onto the route), metres.
     pub rejoin_min_past_m: f64,
+    /// A detour leaves the route this far (along it) before the first blocked point, so the
+    /// route is followed exactly up to the obstacle even when the blockage is seen from afar,
+    /// metres.
+    pub detour_lead_m: f64,
     /// Distance at which the final waypoint counts as reached, metres.
     pub goal_tolerance_m: f64,
+    /// Pure-pursuit look-ahead while repeating, metres: shorter than for goals, because a
+    /// taught route is to be followed to the centimetre, corners included.
+    pub lookahead_m: f64,
+    /// Heading error beyond which the robot turns in place while repeating, radians: a robot
+    /// that sets off with a large heading error swings off the route.
+    pub rotate_in_place_rad: f64,
 }
 
 impl Default for RepeatConfig {
@@ -51,7 +61,10 @@ impl Default for RepeatConfig {
             waypoint_spacing_m: 1.0,
             rejoin_search_m: 20.0,
             rejoin_min_past_m: 0.5,
+            detour_lead_m: 1.5,
             goal_tolerance_m: 0.3,
+            lookahead_m: 0.6,
+            rotate_in_place_rad: 0.35,
         }
     }
 }
@@ -78,6 +91,9 @@ pub struct Detour {
     pub blocked_m: (f64, f64),
     /// Detour length, metres.
     pub length_m: f64,
+    /// Times this detour was re-planned before the robot rejoined (the obstacle's far side
+    /// coming into view moves the rejoin point).
+    pub replans: u32,
 }
 
 /// State of a repeat after a cycle.
@@ -98,8 +114,11 @@ pub struct RouteFollower {
     wps: Vec<Waypoint>,
     next: usize,
     taught_len: usize,
-    /// Detours spliced so far.
+    /// Detours spliced so far (one per blockage; re-plans of a detour still being driven
+    /// update it).
     pub detours: Vec<Detour>,
+    /// Whether the robot is on the last detour, not yet back on the route.
+    on_detour: bool,
     planner: Planner,
 }
 
@@ -122,6 +141,7 @@ impl RouteFollower {
             wps,
             next,
             detours: Vec::new(),
+            on_detour: false,
             planner: Planner::new(),
         }
     }
@@ -135,6 +155,21 @@ impl RouteFollower {
                     .map(|w| w.p),
             )
             .collect()
+    }
+
+    /// The path the controller tracks: the route line itself from the waypoint just passed
+    /// (so cross-track feedback pulls the robot onto the taught line, not onto the chord from
+    /// wherever it is), or from the robot when it is off the route.
+    pub fn follow_path(&self, robot: &Pose2) -> Vec<(f64, f64)> {
+        let r = (robot.x_m, robot.y_m);
+        let next = self.next.min(self.wps.len());
+        if next > 0 && next < self.wps.len() {
+            let (a, b) = (self.wps[next - 1].p, self.wps[next].p);
+            if point_segment_distance(r, a, b) <= self.cfg.reached_radius_m {
+                return self.wps[next - 1..].iter().map(|w| w.p).collect();
+            }
+        }
+        self.path_ahead(robot)
     }
 
     /// All waypoints (taught and spliced).
@@ -168,6 +203,12 @@ impl RouteFollower {
             return RepeatState::Finished;
         }
         self.skip_redundant(r, grid);
+        // Back on the route once the next waypoint is the rejoin point or past it.
+        if let (Some(d), Some(w)) = (self.detours.last(), self.wps.get(self.next)) {
+            if w.taught.is_some_and(|t| t > d.rejoin_taught) {
+                self.on_detour = false;
+            }
+        }
         self.push_points(grid);
         match self.first_blocked(r, grid) {
             None => RepeatState::Following,
@@ -258,17 +299,83 @@ impl RouteFollower {
         None
     }
 
+    /// Where a detour should leave the route ahead: walks the route from the robot to its
+    /// first blocked sample and backs off `detour_lead_m` along it. Returns (how many of the
+    /// waypoints ahead are kept before the departure point, or None to depart from the robot;
+    /// the departure point; the first blocked point).
+    fn departure(
+        &self,
+        r: (f64, f64),
+        grid: &PlanGrid,
+    ) -> Departure {
+        let ahead: Vec<(f64, f64)> = std::iter::once(r)
+            .chain(self.wps[self.next..].iter().map(|w| w.p))
+            .collect();
+        let step = grid.cell_size_m() / 8.0;
+        let mut along = 0.0;
+        // Along-route position of the first blocked sample.
+        let mut hit = None;
+        'walk: for (m, w) in ahead.windows(2).enumerate() {
+            let len = dist(w[0], w[1]);
+            let n = (len / step).ceil().max(1.0) as usize;
+            for k in 0..=n {
+                let t = k as f64 / n as f64;
+                let q = (
+                    w[0].0 + t * (w[1].0 - w[0].0),
+                    w[0].1 + t * (w[1].1 - w[0].1),
+                );
+                if !point_free(grid, q) {
+                    hit = Some((m, along + t * len, q));
+                    break 'walk;
+                }
+            }
+            along += len;
+            if along > self.cfg.check_ahead_m + self.cfg.detour_lead_m {
+                break;
+            }
+        }
+        let Some((hit_seg, s_hit, q_hit)) = hit else {
+            return (None, r, None);
+        };
+        let s_dep = s_hit - self.cfg.detour_lead_m;
+        if s_dep <= grid.cell_size_m() {
+            return (None, r, Some(q_hit));
+        }
+        let mut along = 0.0;
+        for (m, w) in ahead.windows(2).enumerate().take(hit_seg + 1) {
+            let len = dist(w[0], w[1]);
+            if along + len >= s_dep {
+                let t = if len > 1e-9 {
+                    (s_dep - along) / len
+                } else {
+                    0.0
+                };
+                let p = (
+                    w[0].0 + t * (w[1].0 - w[0].0),
+                    w[0].1 + t * (w[1].1 - w[0].1),
+                );
+                // ahead[1..=m] are waypoints next..next+m, all before the departure point.
+                return (Some(m), p, Some(q_hit));
+            }
+            along += len;
+        }
+        (None, r, Some(q_hit))
+    }
+
     fn splice_detour(
         &mut self,
         r: (f64, f64),
         blocked: usize,
         grid: &PlanGrid,
     ) -> Result<(), String> {
+        // Where the detour leaves the route: `detour_lead_m` before the first blocked point,
+        // or at the robot when it is already that close.
+        let (keep, from, blocked_at) = self.departure(r, grid);
         let start = grid
-            .world_to_cell(r.0, r.1)
+            .world_to_cell(from.0, from.1)
             .filter(|c| grid.is_free(i64::from(c.x), i64::from(c.y)))
             .ok_or_else(|| "robot is in a non-traversable cell".to_string())?;
-        let blocked_m = self.wps[blocked].p;
+        let blocked_m = blocked_at.unwrap_or(self.wps[blocked].p);
         // Candidate rejoin points: past the blockage, in route order, free, with room past it.
         let mut along = 0.0;
         let mut first_clear_seen = false;
@@ -306,20 +413,40 @@ impl RouteFollower {
             else {
                 continue;
             };
-            let detour = resample(grid, &path.cells, self.cfg.waypoint_spacing_m, r, p);
+            let detour = resample(grid, &path.cells, self.cfg.waypoint_spacing_m, from, p);
             let length_m = detour.windows(2).map(|w| dist(w[0], w[1])).sum::<f64>();
-            let spliced: Vec<Waypoint> = detour[1..detour.len() - 1]
+            // From the robot the detour starts where it stands; from a departure point on the
+            // route that point is a waypoint of its own.
+            let first = if keep.is_some() { 0 } else { 1 };
+            let spliced: Vec<Waypoint> = detour[first..detour.len() - 1]
                 .iter()
                 .map(|&p| Waypoint { p, taught: None })
                 .collect();
-            self.detours.push(Detour {
+            let d = Detour {
                 blocked_taught: self.wps[blocked].taught.unwrap_or(blocked),
                 rejoin_taught: self.wps[j].taught.unwrap_or(j),
                 rejoin_m: p,
                 blocked_m,
                 length_m,
-            });
-            self.wps.splice(self.next..j, spliced);
+                replans: 0,
+            };
+            match self.detours.last_mut() {
+                Some(last) if self.on_detour => {
+                    *last = Detour {
+                        blocked_taught: last.blocked_taught,
+                        blocked_m: last.blocked_m,
+                        replans: last.replans + 1,
+                        ..d
+                    };
+                }
+                _ => self.detours.push(d),
+            }
+            self.on_detour = true;
+            let from_index = self.next + keep.unwrap_or(0);
+            if j < from_index {
+                continue;
+            }
+            self.wps.splice(from_index..j, spliced);
             return Ok(());
         }
         Err(format!(
@@ -329,8 +456,23 @@ impl RouteFollower {
     }
 }
 
+/// Where a detour leaves the route: (waypoints ahead kept before the departure point, or None
+/// to depart from the robot; the departure point; the first blocked point on the route).
+type Departure = (Option<usize>, (f64, f64), Option<(f64, f64)>);
+
 fn dist(a: (f64, f64), b: (f64, f64)) -> f64 {
     (a.0 - b.0).hypot(a.1 - b.1)
+}
+
+fn point_segment_distance(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
+    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+    let len2 = dx * dx + dy * dy;
+    let t = if len2 > 1e-12 {
+        (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    dist(p, (a.0 + t * dx, a.1 + t * dy))
 }
 
 fn nearest(wps: &[Waypoint], p: (f64, f64)) -> usize {
