@@ -303,11 +303,7 @@ impl RouteFollower {
     /// first blocked sample and backs off `detour_lead_m` along it. Returns (how many of the
     /// waypoints ahead are kept before the departure point, or None to depart from the robot;
     /// the departure point; the first blocked point).
-    fn departure(
-        &self,
-        r: (f64, f64),
-        grid: &PlanGrid,
-    ) -> Departure {
+    fn departure(&self, r: (f64, f64), grid: &PlanGrid) -> Departure {
         let ahead: Vec<(f64, f64)> = std::iter::once(r)
             .chain(self.wps[self.next..].iter().map(|w| w.p))
             .collect();
