@@ -406,6 +406,58 @@ async fn route_gpx(
         .into_response())
 }
 
+/// A route from GPX (route points, else track points, in file order) in the map frame of
+/// `datum`: the inverse of [`route_gpx_text`].
+pub fn route_from_gpx(
+    bytes: &[u8],
+    datum: &msg::Datum,
+    name: &str,
+    t_unix_ms: u64,
+) -> Result<Route, String> {
+    let g = gpx::read(std::io::Cursor::new(bytes)).map_err(|e| format!("GPX: {e}"))?;
+    let mut wpts: Vec<&gpx::Waypoint> = Vec::new();
+    for r in &g.routes {
+        wpts.extend(r.points.iter());
+    }
+    for t in &g.tracks {
+        for s in &t.segments {
+            wpts.extend(s.points.iter());
+        }
+    }
+    if wpts.is_empty() {
+        return Err("GPX has no route or track points".into());
+    }
+    let points = wpts
+        .iter()
+        .map(|w| {
+            let p = w.point();
+            let ll = msg::Datum {
+                lat_deg: p.y(),
+                lon_deg: p.x(),
+                h_m: w.elevation.unwrap_or(datum.h_m),
+            };
+            let e = common::geo::lla_to_enu(datum, &ll);
+            RoutePoint {
+                x_m: e.x,
+                y_m: e.y,
+                lat_deg: Some(ll.lat_deg),
+                lon_deg: Some(ll.lon_deg),
+                h_m: w.elevation,
+                yaw_rad: 0.0,
+                t_unix_ms,
+            }
+        })
+        .collect();
+    Ok(Route {
+        route_id: format!("import-{t_unix_ms}"),
+        name: name.to_string(),
+        robot: String::new(),
+        session_id: String::new(),
+        datum: Some(*datum),
+        points,
+    })
+}
+
 #[derive(Deserialize)]
 struct ImportQuery {
     name: Option<String>,
@@ -424,50 +476,8 @@ async fn route_import(
         .unwrap_or_else(|p| p.into_inner())
         .geodetic(&q.datum_id)
         .ok_or_else(|| bad(format!("datum {} unknown or without lat/lon", q.datum_id)))?;
-    let g = gpx::read(std::io::Cursor::new(body.to_vec())).map_err(|e| bad(format!("GPX: {e}")))?;
-    let mut wpts: Vec<&gpx::Waypoint> = Vec::new();
-    for r in &g.routes {
-        wpts.extend(r.points.iter());
-    }
-    for t in &g.tracks {
-        for s in &t.segments {
-            wpts.extend(s.points.iter());
-        }
-    }
-    if wpts.is_empty() {
-        return Err(bad("GPX has no route or track points"));
-    }
-    let t = now_unix_ms();
-    let points: Vec<RoutePoint> = wpts
-        .iter()
-        .map(|w| {
-            let p = w.point();
-            let ll = msg::Datum {
-                lat_deg: p.y(),
-                lon_deg: p.x(),
-                h_m: w.elevation.unwrap_or(datum.h_m),
-            };
-            let e = common::geo::lla_to_enu(&datum, &ll);
-            RoutePoint {
-                x_m: e.x,
-                y_m: e.y,
-                lat_deg: Some(ll.lat_deg),
-                lon_deg: Some(ll.lon_deg),
-                h_m: w.elevation,
-                yaw_rad: 0.0,
-                t_unix_ms: t,
-            }
-        })
-        .collect();
     let name = q.name.unwrap_or_else(|| "imported".into());
-    let route = Route {
-        route_id: format!("import-{t}"),
-        name,
-        robot: String::new(),
-        session_id: String::new(),
-        datum: Some(datum),
-        points,
-    };
+    let route = route_from_gpx(&body, &datum, &name, now_unix_ms()).map_err(bad)?;
     let row = route_row(&route, Some(q.datum_id.clone()));
     st.inner.store(StoreOp::Route {
         row: row.clone(),
@@ -779,5 +789,76 @@ async fn ws_session(st: AppState, mut socket: WebSocket) {
                 _ => {}
             },
         }
+    }
+}
+
+#[cfg(test)]
+mod gpx_tests {
+    use super::*;
+
+    fn taught() -> Route {
+        let datum = msg::Datum {
+            lat_deg: 50.08,
+            lon_deg: 14.42,
+            h_m: 240.0,
+        };
+        let points = (0..40)
+            .map(|i| {
+                let (x, y) = (f64::from(i) * 1.3 - 20.0, (f64::from(i) * 0.2).sin() * 6.0);
+                let g = common::geo::enu_to_lla(&datum, &nalgebra::Vector3::new(x, y, 0.0));
+                RoutePoint {
+                    x_m: x,
+                    y_m: y,
+                    lat_deg: Some(g.lat_deg),
+                    lon_deg: Some(g.lon_deg),
+                    h_m: Some(g.h_m),
+                    yaw_rad: 0.0,
+                    t_unix_ms: 1_790_000_000_000,
+                }
+            })
+            .collect();
+        Route {
+            route_id: "r1".into(),
+            name: "home & <back>".into(),
+            robot: "husky-1".into(),
+            session_id: "s1".into(),
+            datum: Some(datum),
+            points,
+        }
+    }
+
+    #[test]
+    fn gpx_round_trip_gives_the_same_route() {
+        let r = taught();
+        let text = route_gpx_text(&r).unwrap();
+        let back = route_from_gpx(text.as_bytes(), &r.datum.unwrap(), &r.name, 1).unwrap();
+        assert_eq!(back.points.len(), r.points.len());
+        for (a, b) in r.points.iter().zip(&back.points) {
+            // 9 decimals of a degree are ~0.1 mm; heights are written to the millimetre.
+            assert!(
+                (a.x_m - b.x_m).abs() < 1e-3 && (a.y_m - b.y_m).abs() < 1e-3,
+                "{a:?} {b:?}"
+            );
+            assert!((a.lat_deg.unwrap() - b.lat_deg.unwrap()).abs() < 1e-9);
+            assert!((a.lon_deg.unwrap() - b.lon_deg.unwrap()).abs() < 1e-9);
+            assert!((a.h_m.unwrap() - b.h_m.unwrap()).abs() < 1e-3);
+        }
+        // And once more: an imported route exports to the same file.
+        let again = route_gpx_text(&Route {
+            name: r.name.clone(),
+            ..back
+        })
+        .unwrap();
+        assert_eq!(again, text);
+    }
+
+    #[test]
+    fn bad_gpx_is_a_clear_error() {
+        let d = taught().datum.unwrap();
+        let e = route_from_gpx(b"<gpx>oops", &d, "x", 1).unwrap_err();
+        assert!(e.starts_with("GPX"), "{e}");
+        let empty = "<?xml version=\"1.0\"?><gpx version=\"1.1\" creator=\"t\" xmlns=\"http://www.topografix.com/GPX/1/1\"></gpx>";
+        let e = route_from_gpx(empty.as_bytes(), &d, "x", 1).unwrap_err();
+        assert!(e.contains("no route or track points"), "{e}");
     }
 }
