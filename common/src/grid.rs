@@ -205,124 +205,33 @@ pub const WIRE_HEIGHT_STEP_CM: i16 = 2;
 /// Evidence travels saturated at this many scans: merges only compare evidence to break ties,
 /// and past a few scans "seen often" is all a consumer needs to know.
 pub const WIRE_HITS_MAX: u8 = 7;
-/// Per-cell stamps travel as age classes below the tile's newest cell: exact for the last
-/// 4 s, then two classes per octave (4, 6, 8, 12, 16, 24 ... s), so an age is known to within
-/// half of itself. A decoded stamp is the oldest of its class (never newer than the real
-/// observation), so newer-evidence-wins merges stay conservative.
-fn age_class(age_s: u32) -> u8 {
-    if age_s < 4 {
-        return age_s as u8;
+/// Stamps travel floored to this many seconds: the same observation time always gives the same
+/// wire value whatever else the tile holds (so robot and station tiles compare cell by cell),
+/// a decoded stamp is never newer than the observation, and runs of equal values compress.
+pub const WIRE_STAMP_STEP_S: u32 = 4;
+
+/// A cell as it travels: see [`wire_tile`].
+pub fn wire_cell(c: &Cell) -> Cell {
+    if c.state == CellState::Unknown {
+        return Cell::UNKNOWN;
     }
-    let octave = 31 - age_s.leading_zeros();
-    let half = (age_s >> (octave - 1)) & 1;
-    (4 + (octave - 2) * 2 + half) as u8
-}
-
-/// Lower bound of an age class, seconds; None past the last class.
-fn age_class_lo(class: u8) -> Option<u32> {
-    let c = u32::from(class);
-    if c < 4 {
-        return Some(c);
+    Cell {
+        state: c.state,
+        cost: c.cost,
+        height_cm: c.height_cm.div_euclid(WIRE_HEIGHT_STEP_CM) * WIRE_HEIGHT_STEP_CM,
+        hits: c.hits.min(WIRE_HITS_MAX),
+        stamp_s: c.stamp_s - c.stamp_s % WIRE_STAMP_STEP_S,
     }
-    let octave = (c - 4) / 2 + 2;
-    let half = (c - 4) % 2;
-    if octave > 31 {
-        return None;
-    }
-    Some((1u32 << octave) + half * (1u32 << (octave - 1)))
-}
-
-/// Number of age classes (the last one is open-ended).
-const AGE_CLASSES: u8 = 64;
-
-/// Decoded stamp of a cell in age class `class`.
-fn class_stamp(class: u8, newest_s: u32, oldest_s: u32) -> u32 {
-    match age_class_lo(class + 1) {
-        Some(next_lo) if class + 1 < AGE_CLASSES => {
-            newest_s.saturating_sub(next_lo - 1).max(oldest_s)
-        }
-        _ => oldest_s,
-    }
-}
-
-/// Evidence and stamps travel per block of `WIRE_BLOCK` x `WIRE_BLOCK` cells (0.4 m at the
-/// default 0.2 m cells): the fewest scans and the oldest stamp of the block's known cells, so a
-/// consumer never sees more or newer evidence than there was. Neighbouring cells are seen by
-/// the same sweeps, so little is lost, and these two fields stop dominating the tile.
-pub const WIRE_BLOCK: usize = 2;
-
-/// A block of cells that shares evidence and stamp on the wire.
-struct WireBlock {
-    /// Indices of the block's known cells.
-    cells: Vec<usize>,
-    hits: u8,
-    oldest_s: u32,
-}
-
-/// The blocks that hold at least one known cell, in row-major block order.
-fn wire_blocks(tile: &Tile) -> Vec<WireBlock> {
-    let n = tile.lattice.tile_cells as usize;
-    let mut out = Vec::new();
-    for by in (0..n).step_by(WIRE_BLOCK) {
-        for bx in (0..n).step_by(WIRE_BLOCK) {
-            let mut b = WireBlock {
-                cells: Vec::new(),
-                hits: WIRE_HITS_MAX,
-                oldest_s: u32::MAX,
-            };
-            for y in by..(by + WIRE_BLOCK).min(n) {
-                for x in bx..(bx + WIRE_BLOCK).min(n) {
-                    let i = y * n + x;
-                    let c = &tile.cells[i];
-                    if c.state != CellState::Unknown {
-                        b.cells.push(i);
-                        b.hits = b.hits.min(c.hits);
-                        b.oldest_s = b.oldest_s.min(c.stamp_s);
-                    }
-                }
-            }
-            if !b.cells.is_empty() {
-                out.push(b);
-            }
-        }
-    }
-    out
-}
-
-/// Reference stamps of a tile on the wire: (newest, oldest) block stamp.
-fn block_stamp_range(blocks: &[WireBlock]) -> (u32, u32) {
-    if blocks.is_empty() {
-        return (0, 0);
-    }
-    blocks.iter().fold((0, u32::MAX), |(hi, lo), b| {
-        (hi.max(b.oldest_s), lo.min(b.oldest_s))
-    })
 }
 
 /// The tile as a consumer receives it: `decode_tile(&encode_tile(t))`. States, costs and the
-/// tile header are exact; heights are floored to [`WIRE_HEIGHT_STEP_CM`]; evidence is the
-/// block's fewest scans saturated at [`WIRE_HITS_MAX`]; a stamp is the oldest time of its
-/// block's age class (never newer than observed, within half its age of the truth). Applying
-/// it twice changes nothing, so a relayed or re-stored tile stays the same tile.
+/// tile header are exact; per cell, heights are floored to [`WIRE_HEIGHT_STEP_CM`], evidence
+/// saturates at [`WIRE_HITS_MAX`] and stamps are floored to [`WIRE_STAMP_STEP_S`]. Every step
+/// is per cell and monotonic, so newer-evidence-wins comparisons give the same answer on either
+/// side of the wire, and applying it twice changes nothing.
 pub fn wire_tile(tile: &Tile) -> Tile {
-    let blocks = wire_blocks(tile);
-    let (newest_s, oldest_s) = block_stamp_range(&blocks);
-    let mut cells = vec![Cell::UNKNOWN; tile.cells.len()];
-    for b in &blocks {
-        let stamp_s = class_stamp(age_class(newest_s - b.oldest_s), newest_s, oldest_s);
-        for &i in &b.cells {
-            let c = &tile.cells[i];
-            cells[i] = Cell {
-                state: c.state,
-                cost: c.cost,
-                height_cm: c.height_cm.div_euclid(WIRE_HEIGHT_STEP_CM) * WIRE_HEIGHT_STEP_CM,
-                hits: b.hits,
-                stamp_s,
-            };
-        }
-    }
     Tile {
-        cells,
+        cells: tile.cells.iter().map(wire_cell).collect(),
         ..tile.clone()
     }
 }
@@ -361,14 +270,12 @@ struct TileWire {
     costs: Vec<u8>,
     /// For known cells in order: height in wire steps minus the previous known cell's.
     height_deltas: Vec<i16>,
-    /// For blocks with known cells in order: fewest scans, saturated at [`WIRE_HITS_MAX`].
-    block_hits: Vec<u8>,
-    /// Newest and oldest block stamp, Unix seconds.
-    newest_s: u32,
-    oldest_s: u32,
-    /// For blocks with known cells in order: age class of the block's oldest stamp below
-    /// `newest_s`.
-    block_ages: Vec<u8>,
+    /// For known cells in order: evidence, saturated at [`WIRE_HITS_MAX`].
+    hits: Vec<u8>,
+    /// Stamp of the first known cell in [`WIRE_STAMP_STEP_S`] steps; the others as differences
+    /// to the previous known cell.
+    stamp_base: u32,
+    stamp_deltas: Vec<i32>,
 }
 
 /// Encodes a tile: postcard of the column-wise layout, then zstd. Lossy in the documented
@@ -380,16 +287,29 @@ pub fn encode_tile(tile: &Tile) -> Vec<u8> {
         states[i / 4] |= (c.state as u8) << ((i % 4) * 2);
     }
     let k = tile.known_cells();
-    let (mut costs, mut heights) = (Vec::with_capacity(k), Vec::with_capacity(k));
-    let mut prev_h = 0i16;
-    for c in tile.cells.iter().filter(|c| c.state != CellState::Unknown) {
+    let (mut costs, mut heights, mut hits, mut stamps) = (
+        Vec::with_capacity(k),
+        Vec::with_capacity(k),
+        Vec::with_capacity(k),
+        Vec::with_capacity(k),
+    );
+    let known = tile.cells.iter().filter(|c| c.state != CellState::Unknown);
+    let stamp_base = tile
+        .cells
+        .iter()
+        .find(|c| c.state != CellState::Unknown)
+        .map_or(0, |c| c.stamp_s / WIRE_STAMP_STEP_S);
+    let (mut prev_h, mut prev_s) = (0i16, stamp_base);
+    for c in known {
         costs.push(c.cost);
         let h = c.height_cm.div_euclid(WIRE_HEIGHT_STEP_CM);
         heights.push(h.wrapping_sub(prev_h));
         prev_h = h;
+        hits.push(c.hits.min(WIRE_HITS_MAX));
+        let q = c.stamp_s / WIRE_STAMP_STEP_S;
+        stamps.push(q.wrapping_sub(prev_s) as i32);
+        prev_s = q;
     }
-    let blocks = wire_blocks(tile);
-    let (newest_s, oldest_s) = block_stamp_range(&blocks);
     let wire = TileWire {
         tx: tile.index.tx,
         ty: tile.index.ty,
@@ -399,13 +319,9 @@ pub fn encode_tile(tile: &Tile) -> Vec<u8> {
         states,
         costs,
         height_deltas: heights,
-        block_hits: blocks.iter().map(|b| b.hits).collect(),
-        newest_s,
-        oldest_s,
-        block_ages: blocks
-            .iter()
-            .map(|b| age_class(newest_s - b.oldest_s))
-            .collect(),
+        hits,
+        stamp_base,
+        stamp_deltas: stamps,
     };
     let raw = postcard::to_allocvec(&wire).expect("tile wire layout always encodes");
     let mut out = vec![TILE_MAGIC, TILE_CODEC_VERSION];
@@ -447,57 +363,36 @@ pub fn decode_tile(bytes: &[u8]) -> Result<Tile, TileCodecError> {
         .map(|i| CellState::from_bits(wire.states[i / 4] >> ((i % 4) * 2)))
         .collect();
     let k = states.iter().filter(|s| **s != CellState::Unknown).count();
-    if wire.costs.len() != k || wire.height_deltas.len() != k {
+    if wire.costs.len() != k
+        || wire.height_deltas.len() != k
+        || wire.hits.len() != k
+        || wire.stamp_deltas.len() != k
+    {
         return bad("per-cell array lengths disagree with the states");
     }
+    if wire.hits.iter().any(|h| *h > WIRE_HITS_MAX) {
+        return bad("evidence above the wire's saturation");
+    }
     let mut cells = vec![Cell::UNKNOWN; n];
-    let mut h = 0i16;
+    let (mut h, mut q) = (0i16, wire.stamp_base);
     let mut j = 0;
     for (cell, state) in cells.iter_mut().zip(&states) {
         if *state == CellState::Unknown {
             continue;
         }
         h = h.wrapping_add(wire.height_deltas[j]);
+        q = q.wrapping_add(wire.stamp_deltas[j] as u32);
+        if q > u32::MAX / WIRE_STAMP_STEP_S {
+            return bad("stamp out of range");
+        }
         *cell = Cell {
             state: *state,
             cost: wire.costs[j],
             height_cm: h.wrapping_mul(WIRE_HEIGHT_STEP_CM),
-            hits: 0,
-            stamp_s: 0,
+            hits: wire.hits[j],
+            stamp_s: q * WIRE_STAMP_STEP_S,
         };
         j += 1;
-    }
-    // Blocks in the order the encoder wrote them: those with a known cell.
-    let side = wire.tile_cells as usize;
-    let mut b = 0;
-    for by in (0..side).step_by(WIRE_BLOCK) {
-        for bx in (0..side).step_by(WIRE_BLOCK) {
-            let members: Vec<usize> = (by..(by + WIRE_BLOCK).min(side))
-                .flat_map(|y| (bx..(bx + WIRE_BLOCK).min(side)).map(move |x| y * side + x))
-                .filter(|i| states[*i] != CellState::Unknown)
-                .collect();
-            if members.is_empty() {
-                continue;
-            }
-            let (Some(&hits), Some(&age)) = (wire.block_hits.get(b), wire.block_ages.get(b)) else {
-                return bad("fewer block fields than blocks with known cells");
-            };
-            if hits > WIRE_HITS_MAX || age >= AGE_CLASSES {
-                return bad("block evidence or age class out of range");
-            }
-            let stamp_s = class_stamp(age, wire.newest_s, wire.oldest_s);
-            for i in members {
-                cells[i].hits = hits;
-                cells[i].stamp_s = stamp_s;
-            }
-            b += 1;
-        }
-    }
-    if b != wire.block_hits.len() || b != wire.block_ages.len() {
-        return bad("more block fields than blocks with known cells");
-    }
-    if b > 0 && wire.oldest_s > wire.newest_s {
-        return bad("oldest stamp after the newest");
     }
     Ok(Tile {
         index: TileIndex {
@@ -682,7 +577,7 @@ mod tests {
                 assert_eq!((a.state, a.cost), (w.state, w.cost));
                 if a.state != CellState::Unknown {
                     assert!((0..WIRE_HEIGHT_STEP_CM).contains(&(a.height_cm - w.height_cm)));
-                    assert!(w.hits <= a.hits.min(WIRE_HITS_MAX));
+                    assert_eq!(w.hits, a.hits.min(WIRE_HITS_MAX));
                     assert!(w.stamp_s <= a.stamp_s, "{name}: stamp {w:?} vs {a:?}");
                 }
             }
@@ -739,34 +634,23 @@ mod tests {
         }
 
         #[test]
-        fn stamps_never_get_newer_and_recent_ones_stay_exact(ages in proptest::collection::vec(prop_oneof![0u32..100, 0u32..5000, 0u32..2_000_000_000], 1..64)) {
+        fn stamps_never_get_newer_and_keep_their_order(stamps in proptest::collection::vec(0u32..u32::MAX, 64)) {
             let lattice = Lattice { cell_size_m: 0.2, tile_cells: 8 };
             let mut t = Tile::new(TileIndex { tx: 0, ty: 0 }, lattice);
-            for (c, a) in t.cells.iter_mut().zip(&ages) {
-                *c = Cell { state: CellState::Traversable, cost: 0, height_cm: 0, hits: 1, stamp_s: 1_800_000_000 - a };
+            for (c, s) in t.cells.iter_mut().zip(&stamps) {
+                *c = Cell { state: CellState::Traversable, cost: 0, height_cm: 0, hits: 1, stamp_s: *s };
             }
             let back = decode_tile(&encode_tile(&t)).unwrap();
-            // The oldest stamp of each cell's 2 x 2 block, and the newest of those.
-            let block_oldest = |i: usize| {
-                let (bx, by) = (i % 8 / 2 * 2, i / 8 / 2 * 2);
-                [(0, 0), (1, 0), (0, 1), (1, 1)].iter()
-                    .map(|(dx, dy)| (by + dy) * 8 + bx + dx)
-                    .filter(|j| t.cells[*j].state != CellState::Unknown)
-                    .map(|j| t.cells[j].stamp_s)
-                    .min()
-                    .unwrap()
-            };
-            let known: Vec<usize> = (0..64).filter(|i| t.cells[*i].state != CellState::Unknown).collect();
-            let newest = known.iter().map(|i| block_oldest(*i)).max().unwrap();
-            for &i in &known {
-                let (a, w) = (&t.cells[i], &back.cells[i]);
-                prop_assert!(w.stamp_s <= a.stamp_s);
-                let (o, age) = (block_oldest(i), newest - block_oldest(i));
-                if age < 4 {
-                    prop_assert_eq!(w.stamp_s, o);
+            for (a, w) in t.cells.iter().zip(&back.cells) {
+                prop_assert!(w.stamp_s <= a.stamp_s && a.stamp_s - w.stamp_s < WIRE_STAMP_STEP_S);
+            }
+            // Monotonic: an older observation never decodes newer than a newer one.
+            for i in 0..64 {
+                for j in 0..64 {
+                    if t.cells[i].stamp_s <= t.cells[j].stamp_s {
+                        prop_assert!(back.cells[i].stamp_s <= back.cells[j].stamp_s);
+                    }
                 }
-                // The block's stamp is known to within half its age.
-                prop_assert!(o - w.stamp_s <= age / 2, "age {} decoded {} s older", age, o - w.stamp_s);
             }
         }
 

@@ -109,7 +109,8 @@ fn rate(n: usize, d: Duration) -> f64 {
 }
 
 fn merge_bench(n: usize) -> anyhow::Result<serde_json::Value> {
-    // 400 tile indices (20 x 20), each updated n / 400 times with newer stamps, as robots do.
+    // 400 tile indices (20 x 20), each updated n / 400 times with newer stamps (one wire stamp
+    // step apart), as robots do.
     let encoded: Vec<Vec<u8>> = (0..n)
         .map(|i| {
             let idx = TileIndex {
@@ -120,7 +121,7 @@ fn merge_bench(n: usize) -> anyhow::Result<serde_json::Value> {
             encode_tile(&robot_like_tile(
                 idx,
                 u64::from(round) + 1,
-                1_790_000_000 + round,
+                1_790_000_000 + round * common::grid::WIRE_STAMP_STEP_S,
                 i as u64,
             ))
         })
