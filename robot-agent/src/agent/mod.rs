@@ -431,6 +431,45 @@ impl Agent {
         &self.slam
     }
 
+    /// The grid a taught route's corridor is checked on: only cells the mapper classified as
+    /// obstacles, grown by the robot's half width plus `corridor_margin_m`, on the planning
+    /// window around `pose`.
+    pub fn corridor_grid(&self, pose: &Pose2) -> PlanGrid {
+        let lattice = self.mapper.lattice();
+        let window = GridWindow::centred(
+            lattice,
+            pose.x_m,
+            pose.y_m,
+            self.cfg.planner.num_of_grid_cells,
+        );
+        let view = self
+            .mapper
+            .view(window.min_cx, window.min_cy, window.width, window.height);
+        let s = lattice.cell_size_f64();
+        // The same cells as `plan_grid` (`PlanGrid::from_cells` puts the origin there too).
+        let origin = (window.min_cx as f64 * s, window.min_cy as f64 * s);
+        let mut grid = PlanGrid::new(window.width, window.height, s, origin);
+        let r_m = 0.5 * self.cfg.profile.width_m + self.cfg.repeat.corridor_margin_m;
+        let r = (r_m / s).floor() as i64;
+        let disc: Vec<(i64, i64)> = (-r..=r)
+            .flat_map(|dy| (-r..=r).map(move |dx| (dx, dy)))
+            .filter(|(dx, dy)| ((dx * dx + dy * dy) as f64).sqrt() * s <= r_m)
+            .collect();
+        for gy in 0..i64::from(window.height) {
+            for gx in 0..i64::from(window.width) {
+                let c = view.get(window.min_cx + gx, window.min_cy + gy);
+                if c.state == common::grid::CellState::Obstacle {
+                    for (dx, dy) in &disc {
+                        if grid.contains(gx + dx, gy + dy) {
+                            grid.set_blocked(gx + dx, gy + dy);
+                        }
+                    }
+                }
+            }
+        }
+        grid
+    }
+
     /// The planning grid around a pose, from the mapper's cells.
     pub fn plan_grid(&self, pose: &Pose2) -> PlanGrid {
         let lattice = self.mapper.lattice();
@@ -689,8 +728,28 @@ impl Agent {
             }
             self.last_plan_t_s = t_s;
             let grid = self.plan_grid(&pose.planar);
+            let corridor = self.corridor_grid(&pose.planar);
             if let Some((f, _)) = self.repeat.as_mut() {
-                match f.update(&pose.planar, &grid) {
+                let before = f.detours.last().map(|d| (f.detours.len(), d.replans));
+                let state = f.update_with_corridor(&pose.planar, &grid, &corridor);
+                if let Some(d) = f.detours.last() {
+                    if before != Some((f.detours.len(), d.replans)) {
+                        let (cx, cy) = self.mapper.lattice().cell_of(d.blocked_m.0, d.blocked_m.1);
+                        tracing::info!(
+                            "repeat: detour {} (re-plan {}) around ({:.1}, {:.1}) [{:?}], rejoins taught point {} at ({:.1}, {:.1}), {:.1} m",
+                            f.detours.len(),
+                            d.replans,
+                            d.blocked_m.0,
+                            d.blocked_m.1,
+                            self.mapper.class(cx, cy),
+                            d.rejoin_taught,
+                            d.rejoin_m.0,
+                            d.rejoin_m.1,
+                            d.length_m
+                        );
+                    }
+                }
+                match state {
                     RepeatState::Following => {}
                     RepeatState::Blocked(why) => self.last_error = Some(format!("repeat: {why}")),
                     RepeatState::Finished => {
@@ -766,29 +825,36 @@ impl Agent {
     }
 
     fn follow(&mut self, pose: &Pose2, path: &[(f64, f64)], stop_ahead: bool, to_end: bool) -> Cmd {
+        self.follow_with(false, pose, path, stop_ahead, to_end)
+    }
+
+    fn follow_route(&mut self, pose: &Pose2, path: &[(f64, f64)], stop_ahead: bool) -> Cmd {
+        self.follow_with(true, pose, path, stop_ahead, true)
+    }
+
+    /// Follows `path` with the goal controller or the taught-route tracker.
+    fn follow_with(
+        &self,
+        route: bool,
+        pose: &Pose2,
+        path: &[(f64, f64)],
+        stop_ahead: bool,
+        to_end: bool,
+    ) -> Cmd {
         if path.len() < 2 {
             return Cmd::default();
         }
-        let c = self.follower.command(
+        let follower = if route {
+            &self.route_tracker
+        } else {
+            &self.follower
+        };
+        let c = follower.command(
             pose,
             path,
             self.speed_limit_mps,
             self.safety.clearance_m,
             to_end,
-        );
-        self.gate(c, stop_ahead)
-    }
-
-    fn follow_route(&mut self, pose: &Pose2, path: &[(f64, f64)], stop_ahead: bool) -> Cmd {
-        if path.len() < 2 {
-            return Cmd::default();
-        }
-        let c = self.route_tracker.command(
-            pose,
-            path,
-            self.speed_limit_mps,
-            self.safety.clearance_m,
-            true,
         );
         self.gate(c, stop_ahead)
     }

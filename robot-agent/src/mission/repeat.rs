@@ -28,6 +28,8 @@ pub struct RepeatConfig {
     pub skip_radius_m: f64,
     /// Length of route ahead checked against the grid each cycle, metres.
     pub check_ahead_m: f64,
+    /// The corridor checked along the route is the robot's half width plus this, metres.
+    pub corridor_margin_m: f64,
     /// How far a point in a non-traversable cell may be pushed, metres.
     pub push_max_m: f64,
     /// Spacing of detour waypoints, metres.
@@ -57,6 +59,7 @@ impl Default for RepeatConfig {
             reached_radius_m: 0.6,
             skip_radius_m: 1.0,
             check_ahead_m: 8.0,
+            corridor_margin_m: 0.1,
             push_max_m: 0.6,
             waypoint_spacing_m: 1.0,
             rejoin_search_m: 20.0,
@@ -191,6 +194,19 @@ impl RouteFollower {
 
     /// One repeat cycle on the current grid.
     pub fn update(&mut self, robot: &Pose2, grid: &PlanGrid) -> RepeatState {
+        self.update_with_corridor(robot, grid, grid)
+    }
+
+    /// One repeat cycle: `corridor` decides whether the route ahead is blocked (obstacles
+    /// within the robot's half width of the taught line; the robot drove there, so the planner's
+    /// wider inflation margins must not call a free route blocked), `grid` is what detours are
+    /// planned on.
+    pub fn update_with_corridor(
+        &mut self,
+        robot: &Pose2,
+        grid: &PlanGrid,
+        corridor: &PlanGrid,
+    ) -> RepeatState {
         let r = (robot.x_m, robot.y_m);
         self.advance(r);
         if self.next >= self.wps.len() {
@@ -209,10 +225,10 @@ impl RouteFollower {
                 self.on_detour = false;
             }
         }
-        self.push_points(grid);
-        match self.first_blocked(r, grid) {
+        self.push_points(corridor);
+        match self.first_blocked(r, corridor) {
             None => RepeatState::Following,
-            Some(b) => match self.splice_detour(r, b, grid) {
+            Some(b) => match self.splice_detour(r, b, grid, corridor) {
                 Ok(()) => RepeatState::Following,
                 Err(why) => RepeatState::Blocked(why),
             },
@@ -363,14 +379,27 @@ impl RouteFollower {
         r: (f64, f64),
         blocked: usize,
         grid: &PlanGrid,
+        corridor: &PlanGrid,
     ) -> Result<(), String> {
         // Where the detour leaves the route: `detour_lead_m` before the first blocked point,
         // or at the robot when it is already that close.
-        let (keep, from, blocked_at) = self.departure(r, grid);
+        let (keep, from, blocked_at) = self.departure(r, corridor);
         let start = grid
             .world_to_cell(from.0, from.1)
-            .filter(|c| grid.is_free(i64::from(c.x), i64::from(c.y)))
-            .ok_or_else(|| "robot is in a non-traversable cell".to_string())?;
+            .ok_or_else(|| "detour start is off the planning grid".to_string())?;
+        // The departure point is on the driven line: free of obstacles, perhaps inside the
+        // planner's inflation margin, which must not stop the detour from starting there.
+        let own;
+        let grid = if grid.is_free(i64::from(start.x), i64::from(start.y)) {
+            grid
+        } else if corridor.is_free(i64::from(start.x), i64::from(start.y)) {
+            let mut g = grid.clone();
+            g.set(i64::from(start.x), i64::from(start.y), 0.0, false);
+            own = g;
+            &own
+        } else {
+            return Err("robot is in a non-traversable cell".to_string());
+        };
         let blocked_m = blocked_at.unwrap_or(self.wps[blocked].p);
         // Candidate rejoin points: past the blockage, in route order, free, with room past it.
         let mut along = 0.0;
@@ -394,7 +423,7 @@ impl RouteFollower {
                 continue;
             }
             // The rest of the route right after j must be free too, or the detour ends in a trap.
-            if j + 1 < self.wps.len() && !segment_free(grid, p, self.wps[j + 1].p) {
+            if j + 1 < self.wps.len() && !segment_free(corridor, p, self.wps[j + 1].p) {
                 continue;
             }
             let Some(goal) = grid.world_to_cell(p.0, p.1) else {
