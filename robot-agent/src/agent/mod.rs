@@ -431,13 +431,11 @@ impl Agent {
         &self.slam
     }
 
-    /// The grid a taught route's corridor is checked on: only cells the mapper classified as
-    /// obstacles, grown by the robot's half width plus `corridor_margin_m`, on the planning
-    /// window around `pose`.
-    pub fn corridor_grid(&self, pose: &Pose2) -> PlanGrid {
-        let lattice = self.mapper.lattice();
+    /// The planning window around `pose` and the mapper's cells in it: what both the planning
+    /// grid and a route's corridor grid are built from (read once per cycle).
+    fn planning_window(&self, pose: &Pose2) -> (GridWindow, mapping::PlannerView) {
         let window = GridWindow::centred(
-            lattice,
+            self.mapper.lattice(),
             pose.x_m,
             pose.y_m,
             self.cfg.planner.num_of_grid_cells,
@@ -445,7 +443,13 @@ impl Agent {
         let view = self
             .mapper
             .view(window.min_cx, window.min_cy, window.width, window.height);
-        let s = lattice.cell_size_f64();
+        (window, view)
+    }
+
+    /// The grid a taught route's corridor is checked on: only cells the mapper classified as
+    /// obstacles, grown by the robot's half width plus `corridor_margin_m`.
+    fn corridor_grid(&self, window: &GridWindow, view: &mapping::PlannerView) -> PlanGrid {
+        let s = window.lattice.cell_size_f64();
         // The same cells as `plan_grid` (`PlanGrid::from_cells` puts the origin there too).
         let origin = (window.min_cx as f64 * s, window.min_cy as f64 * s);
         let mut grid = PlanGrid::new(window.width, window.height, s, origin);
@@ -472,18 +476,19 @@ impl Agent {
 
     /// The planning grid around a pose, from the mapper's cells.
     pub fn plan_grid(&self, pose: &Pose2) -> PlanGrid {
-        let lattice = self.mapper.lattice();
-        let window = GridWindow::centred(
-            lattice,
-            pose.x_m,
-            pose.y_m,
-            self.cfg.planner.num_of_grid_cells,
-        );
-        let view = self
-            .mapper
-            .view(window.min_cx, window.min_cy, window.width, window.height);
+        let (window, view) = self.planning_window(pose);
+        self.plan_grid_in(pose, &window, &view)
+    }
+
+    fn plan_grid_in(
+        &self,
+        pose: &Pose2,
+        window: &GridWindow,
+        view: &mapping::PlannerView,
+    ) -> PlanGrid {
+        let lattice = window.lattice;
         let rule = CostRule::from_config(&self.cfg.planner);
-        let mut grid = PlanGrid::from_cells(&window, &rule, |cx, cy| view.get(cx, cy));
+        let mut grid = PlanGrid::from_cells(window, &rule, |cx, cy| view.get(cx, cy));
         // The robot stands on its footprint, so those cells are driveable whatever inflation says
         // (a walker passing close inflates the cells around the robot and would wall it in).
         // Cells classified as obstacles themselves stay blocked.
@@ -727,8 +732,9 @@ impl Agent {
                 return false;
             }
             self.last_plan_t_s = t_s;
-            let grid = self.plan_grid(&pose.planar);
-            let corridor = self.corridor_grid(&pose.planar);
+            let (window, view) = self.planning_window(&pose.planar);
+            let grid = self.plan_grid_in(&pose.planar, &window, &view);
+            let corridor = self.corridor_grid(&window, &view);
             if let Some((f, _)) = self.repeat.as_mut() {
                 let before = f.detours.last().map(|d| (f.detours.len(), d.replans));
                 let state = f.update_with_corridor(&pose.planar, &grid, &corridor);
