@@ -61,6 +61,10 @@ struct EvalArgs {
     /// why a cell is what it is.
     #[arg(long, value_name = "X,Y", allow_hyphen_values = true)]
     probe: Vec<String>,
+    /// Write every published tile, exact, into this folder (created): a corpus for tile codec
+    /// work (`cargo test --release -p common -- --ignored corpus`).
+    #[arg(long, value_name = "DIR")]
+    tiles_out: Option<PathBuf>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -306,6 +310,10 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
     let (scenario, mut opts) =
         eval_options(&a.scenario, a.config.as_deref(), a.use_truth_poses, a.seed)?;
     opts.max_duration_s = a.max_duration;
+    if let Some(dir) = &a.tiles_out {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        opts.tiles_out = Some(dir.clone());
+    }
     let (r, mapper) = run_eval(&scenario, &opts)?;
     if let Some(png) = &a.png {
         draw(&mapper, png, 3)?;

@@ -3,6 +3,7 @@
 //! mapper at the true or the SLAM pose, and the classification before inflation is compared with
 //! the world's truth labels over the cells the sensor observed.
 
+use anyhow::Context;
 use common::grid::{encode_tile, CellState};
 use mapping::{Class, Mapper, RobotPose};
 use nalgebra::{Isometry3, Point3};
@@ -29,6 +30,9 @@ pub struct MapEvalOptions {
     /// Ignore truth cells within this distance of where any walker went: the cells walkers
     /// crossed are scored separately (`walker_cells`, `walker_false_obstacles`).
     pub walker_margin_m: f64,
+    /// Write every published tile, exact (postcard of `common::grid::Tile`, before the wire's
+    /// quantization), into this folder as `NNNNNN-TX_TY.tile`: a corpus for codec work.
+    pub tiles_out: Option<std::path::PathBuf>,
 }
 
 impl Default for MapEvalOptions {
@@ -41,6 +45,7 @@ impl Default for MapEvalOptions {
             slam: slam::Config::default(),
             profile: sim::RobotProfile::default(),
             walker_margin_m: 0.0,
+            tiles_out: None,
         }
     }
 }
@@ -281,6 +286,14 @@ pub fn run(
         ms_sum += ms;
         rep.ms_max = rep.ms_max.max(ms);
         rep.scans += 1;
+        if let Some(dir) = &opts.tiles_out {
+            for (k, t) in u.tiles.iter().enumerate() {
+                let seq = rep.tiles_published + k;
+                let path = dir.join(format!("{seq:06}-{}_{}.tile", t.index.tx, t.index.ty));
+                std::fs::write(&path, postcard::to_allocvec(t)?)
+                    .with_context(|| format!("writing {}", path.display()))?;
+            }
+        }
         rep.tiles_published += u.tiles.len();
         tile_bytes += u.tiles.iter().map(|t| encode_tile(t).len()).sum::<usize>();
         let done = driver_progress(&driver, &drive.points, &p) / n_vertices;
