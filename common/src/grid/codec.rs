@@ -351,12 +351,15 @@ fn code_stamp<C: BitCoder>(
     q_in: i64,
 ) -> i64 {
     let q = near.map(|x| x.map(|x| x.q));
-    let mut cands: Vec<i64> = Vec::with_capacity(STAMP_CANDS);
+    let mut cands = [0i64; STAMP_CANDS];
+    let mut len = 0;
     for v in q.iter().flatten().chain(last.iter()) {
-        if !cands.contains(v) && cands.len() < STAMP_CANDS {
-            cands.push(*v);
+        if len < STAMP_CANDS && !cands[..len].contains(v) {
+            cands[len] = *v;
+            len += 1;
         }
     }
+    let cands = &cands[..len];
     let Some(&base) = cands.first() else {
         // The tile's first stamp: 32 bits, the top byte modelled (it rarely changes).
         let hi = m.stamp_first[0].code(c, (q_in >> 24) as u32 & 0xFF);

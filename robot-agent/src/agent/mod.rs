@@ -72,6 +72,8 @@ pub struct Agent {
     nav: Navigator,
     repeat: Option<(RouteFollower, Route)>,
     repeat_paused: bool,
+    /// Whether the repeat holds in front of a blockage it waits for (logged once per wait).
+    repeat_waiting: bool,
     recorder: Option<RouteRecorder>,
     gnss: GnssTracker,
     follower: control::Follower,
@@ -128,6 +130,7 @@ impl Agent {
             nav: Navigator::new(cfg.nav.clone(), cfg.planner.clone()),
             repeat: None,
             repeat_paused: false,
+            repeat_waiting: false,
             recorder: None,
             gnss: GnssTracker::new(cfg.gnss.clone()),
             follower: control::Follower::new(cfg.control.clone()),
@@ -737,7 +740,8 @@ impl Agent {
             let corridor = self.corridor_grid(&window, &view);
             if let Some((f, _)) = self.repeat.as_mut() {
                 let before = f.detours.last().map(|d| (f.detours.len(), d.replans));
-                let state = f.update_with_corridor(&pose.planar, &grid, &corridor);
+                let state = f.update_with_corridor(&pose.planar, &grid, &corridor, t_s);
+                let waiting = matches!(state, RepeatState::Waiting { holding: true, .. });
                 if let Some(d) = f.detours.last() {
                     if before != Some((f.detours.len(), d.replans)) {
                         let (cx, cy) = self.mapper.lattice().cell_of(d.blocked_m.0, d.blocked_m.1);
@@ -757,12 +761,28 @@ impl Agent {
                 }
                 match state {
                     RepeatState::Following => {}
-                    RepeatState::Blocked(why) => self.last_error = Some(format!("repeat: {why}")),
+                    RepeatState::Waiting { at_m, holding } => {
+                        if holding && !self.repeat_waiting {
+                            tracing::info!(
+                                "repeat: waiting for the route to clear at ({:.1}, {:.1})",
+                                at_m.0,
+                                at_m.1
+                            );
+                        }
+                    }
+                    RepeatState::Blocked(why) => {
+                        let e = format!("repeat: holding: {why}");
+                        if self.last_error.as_deref() != Some(e.as_str()) {
+                            tracing::warn!("{e}");
+                        }
+                        self.last_error = Some(e);
+                    }
                     RepeatState::Finished => {
                         self.mode = Mode::Idle;
                         self.nav.stop("route finished");
                     }
                 }
+                self.repeat_waiting = waiting;
             }
             return true;
         }
@@ -815,6 +835,9 @@ impl Agent {
                 } else {
                     Cmd::default()
                 }
+            }
+            Mode::Repeat if self.repeat.as_ref().is_some_and(|(f, _)| f.holding()) => {
+                Cmd::default()
             }
             Mode::Repeat if !self.repeat_paused => {
                 let path = self
@@ -972,7 +995,17 @@ impl Agent {
         self.repeat.as_ref().map(|(f, _)| f)
     }
 
-    /// Current mode.
+    /// The last error or refusal, for operators and logs.
+    pub fn last_error(&self) -> Option<&str> {
+        self.last_error.as_deref()
+    }
+
+    /// Whether a repeat holds the robot still (waiting for, or unable to get round, a blockage).
+    pub fn repeat_holding(&self) -> bool {
+        self.repeat.as_ref().is_some_and(|(f, _)| f.holding())
+    }
+
+    /// The mode the agent is in.
     pub fn mode(&self) -> Mode {
         self.mode
     }

@@ -9,9 +9,14 @@
 //!    `push_max_m`;
 //! 4. check the corridor ahead (`check_ahead_m`) against the grid, which the mapper inflated by the
 //!    robot's half width; if blocked, plan the shortest detour with A* (unknown cells assumed
-//!    traversable) to the first reachable route point past the blockage, resample it at the
+//!    traversable) to the first reachable taught point past the blockage, resample it at the
 //!    waypoint spacing and splice it in. Only a blocked route is replanned: where the route is
 //!    free it is followed exactly as taught, even where it looks suboptimal.
+//!
+//! A blockage is acted on only once it has stayed put for `blockage_confirm_s`: a person
+//! crossing or walking along the route is waited for (the robot holds `detour_lead_m` before
+//! it), not driven around, and a detour never chases something that moves. After
+//! `blockage_wait_max_s` of holding, the robot detours around whatever is there.
 
 use common::geom::Pose2;
 use planning::smooth::{point_free, segment_free};
@@ -51,6 +56,14 @@ pub struct RepeatConfig {
     /// Heading error beyond which the robot turns in place while repeating, radians: a robot
     /// that sets off with a large heading error swings off the route.
     pub rotate_in_place_rad: f64,
+    /// A blockage must stay within `blockage_still_m` of where it was first seen this long
+    /// before a detour is planned around it, seconds.
+    pub blockage_confirm_s: f64,
+    /// How far the first blocked point may move and still count as the same, still blockage,
+    /// metres.
+    pub blockage_still_m: f64,
+    /// After holding this long in front of a blockage that keeps moving, detour anyway, seconds.
+    pub blockage_wait_max_s: f64,
 }
 
 impl Default for RepeatConfig {
@@ -68,6 +81,9 @@ impl Default for RepeatConfig {
             goal_tolerance_m: 0.3,
             lookahead_m: 0.6,
             rotate_in_place_rad: 0.35,
+            blockage_confirm_s: 2.0,
+            blockage_still_m: 0.6,
+            blockage_wait_max_s: 20.0,
         }
     }
 }
@@ -104,7 +120,15 @@ pub struct Detour {
 pub enum RepeatState {
     /// Following the route.
     Following,
-    /// The route ahead is blocked and no detour exists (yet); the robot waits.
+    /// The route ahead is blocked by something that has not stayed put yet; the robot holds
+    /// `detour_lead_m` before it (or drives on while farther).
+    Waiting {
+        /// The first blocked point, map frame.
+        at_m: (f64, f64),
+        /// Whether the robot is holding (stopped) for it.
+        holding: bool,
+    },
+    /// The route ahead is blocked and no detour exists (yet); the robot holds.
     Blocked(String),
     /// The last waypoint is reached.
     Finished,
@@ -122,7 +146,20 @@ pub struct RouteFollower {
     pub detours: Vec<Detour>,
     /// Whether the robot is on the last detour, not yet back on the route.
     on_detour: bool,
+    /// A blockage seen and not yet detoured.
+    pending: Option<Pending>,
+    /// Whether the robot must stand still (in front of a blockage).
+    holding: bool,
     planner: Planner,
+}
+
+/// A blockage being watched: where, since when it has been still there, since when the robot
+/// holds for it.
+#[derive(Clone, Copy, Debug)]
+struct Pending {
+    at_m: (f64, f64),
+    still_since_s: f64,
+    holding_since_s: Option<f64>,
 }
 
 impl RouteFollower {
@@ -145,6 +182,8 @@ impl RouteFollower {
             next,
             detours: Vec::new(),
             on_detour: false,
+            pending: None,
+            holding: false,
             planner: Planner::new(),
         }
     }
@@ -192,9 +231,15 @@ impl RouteFollower {
         self.taught_len
     }
 
-    /// One repeat cycle on the current grid.
-    pub fn update(&mut self, robot: &Pose2, grid: &PlanGrid) -> RepeatState {
-        self.update_with_corridor(robot, grid, grid)
+    /// Whether the robot must stand still: in front of a blockage it waits for, or one it
+    /// cannot get around.
+    pub fn holding(&self) -> bool {
+        self.holding
+    }
+
+    /// One repeat cycle on the current grid at time `t_s` (seconds, any epoch).
+    pub fn update(&mut self, robot: &Pose2, grid: &PlanGrid, t_s: f64) -> RepeatState {
+        self.update_with_corridor(robot, grid, grid, t_s)
     }
 
     /// One repeat cycle: `corridor` decides whether the route ahead is blocked (obstacles
@@ -206,9 +251,11 @@ impl RouteFollower {
         robot: &Pose2,
         grid: &PlanGrid,
         corridor: &PlanGrid,
+        t_s: f64,
     ) -> RepeatState {
         let r = (robot.x_m, robot.y_m);
         self.advance(r);
+        self.holding = false;
         if self.next >= self.wps.len() {
             return RepeatState::Finished;
         }
@@ -226,12 +273,47 @@ impl RouteFollower {
             }
         }
         self.push_points(corridor);
-        match self.first_blocked(r, corridor) {
-            None => RepeatState::Following,
-            Some(b) => match self.splice_detour(r, b, grid, corridor) {
-                Ok(()) => RepeatState::Following,
-                Err(why) => RepeatState::Blocked(why),
-            },
+        let Some(b) = self.first_blocked(r, corridor) else {
+            self.pending = None;
+            return RepeatState::Following;
+        };
+        let (s_hit, at_m) = self
+            .first_blocked_sample(r, corridor)
+            .map_or_else(|| (self.along_to(r, b), self.wps[b].p), |(_, s, q)| (s, q));
+        let cfg = &self.cfg;
+        let p = self.pending.get_or_insert(Pending {
+            at_m,
+            still_since_s: t_s,
+            holding_since_s: None,
+        });
+        if dist(p.at_m, at_m) > cfg.blockage_still_m {
+            p.at_m = at_m;
+            p.still_since_s = t_s;
+        }
+        let close = s_hit <= cfg.detour_lead_m;
+        if close {
+            p.holding_since_s.get_or_insert(t_s);
+        }
+        let still = t_s - p.still_since_s >= cfg.blockage_confirm_s;
+        let waited_out = p
+            .holding_since_s
+            .is_some_and(|h| t_s - h >= cfg.blockage_wait_max_s);
+        if !(still || waited_out) {
+            self.holding = close;
+            return RepeatState::Waiting {
+                at_m,
+                holding: close,
+            };
+        }
+        match self.splice_detour(r, b, grid, corridor) {
+            Ok(()) => {
+                self.pending = None;
+                RepeatState::Following
+            }
+            Err(why) => {
+                self.holding = true;
+                RepeatState::Blocked(why)
+            }
         }
     }
 
@@ -315,38 +397,55 @@ impl RouteFollower {
         None
     }
 
-    /// Where a detour should leave the route ahead: walks the route from the robot to its
-    /// first blocked sample and backs off `detour_lead_m` along it. Returns (how many of the
-    /// waypoints ahead are kept before the departure point, or None to depart from the robot;
-    /// the departure point; the first blocked point).
-    fn departure(&self, r: (f64, f64), grid: &PlanGrid) -> Departure {
-        let ahead: Vec<(f64, f64)> = std::iter::once(r)
-            .chain(self.wps[self.next..].iter().map(|w| w.p))
-            .collect();
+    /// Distance from the robot along the route ahead to waypoint `j`, metres.
+    fn along_to(&self, r: (f64, f64), j: usize) -> f64 {
+        let mut prev = r;
+        let mut along = 0.0;
+        for w in &self.wps[self.next..=j.min(self.wps.len() - 1)] {
+            along += dist(prev, w.p);
+            prev = w.p;
+        }
+        along
+    }
+
+    /// The first blocked sample along the route ahead of the robot: (segment of the polyline
+    /// robot-then-waypoints, distance along it, the point).
+    fn first_blocked_sample(
+        &self,
+        r: (f64, f64),
+        grid: &PlanGrid,
+    ) -> Option<(usize, f64, (f64, f64))> {
         let step = grid.cell_size_m() / 8.0;
         let mut along = 0.0;
-        // Along-route position of the first blocked sample.
-        let mut hit = None;
-        'walk: for (m, w) in ahead.windows(2).enumerate() {
-            let len = dist(w[0], w[1]);
+        let mut prev = r;
+        for (m, w) in self.wps[self.next..].iter().enumerate() {
+            let len = dist(prev, w.p);
             let n = (len / step).ceil().max(1.0) as usize;
             for k in 0..=n {
                 let t = k as f64 / n as f64;
-                let q = (
-                    w[0].0 + t * (w[1].0 - w[0].0),
-                    w[0].1 + t * (w[1].1 - w[0].1),
-                );
+                let q = (prev.0 + t * (w.p.0 - prev.0), prev.1 + t * (w.p.1 - prev.1));
                 if !point_free(grid, q) {
-                    hit = Some((m, along + t * len, q));
-                    break 'walk;
+                    return Some((m, along + t * len, q));
                 }
             }
             along += len;
             if along > self.cfg.check_ahead_m + self.cfg.detour_lead_m {
                 break;
             }
+            prev = w.p;
         }
-        let Some((hit_seg, s_hit, q_hit)) = hit else {
+        None
+    }
+
+    /// Where a detour should leave the route ahead: the route from the robot to its first
+    /// blocked sample, backed off `detour_lead_m` along it. Returns (how many of the waypoints
+    /// ahead are kept before the departure point, or None to depart from the robot; the
+    /// departure point; the first blocked point).
+    fn departure(&self, r: (f64, f64), grid: &PlanGrid) -> Departure {
+        let ahead: Vec<(f64, f64)> = std::iter::once(r)
+            .chain(self.wps[self.next..].iter().map(|w| w.p))
+            .collect();
+        let Some((hit_seg, s_hit, q_hit)) = self.first_blocked_sample(r, grid) else {
             return (None, r, None);
         };
         let s_dep = s_hit - self.cfg.detour_lead_m;
@@ -412,6 +511,11 @@ impl RouteFollower {
                 break;
             }
             let p = self.wps[j].p;
+            // Only the taught route is rejoined: a point of an earlier detour is where the
+            // robot went around something, and rejoining there chains detours off the route.
+            if self.wps[j].taught.is_none() {
+                continue;
+            }
             if !point_free(grid, p) {
                 first_clear_seen = false;
                 continue;
@@ -591,7 +695,7 @@ mod tests {
         let route = straight_route();
         let robot = Pose2::new(5.0, 10.0, 0.0);
         let mut f = RouteFollower::new(RepeatConfig::default(), &route, &robot);
-        assert_eq!(f.update(&robot, &empty_grid()), RepeatState::Following);
+        assert_eq!(f.update(&robot, &empty_grid(), 0.0), RepeatState::Following);
         let ahead = f.path_ahead(&robot);
         assert!(
             ahead[1..].iter().all(|p| (p.1 - 10.0).abs() < 1e-12),
@@ -611,7 +715,14 @@ mod tests {
         block_rect(&mut g, 14.0, 8.5, 18.0, 11.5);
         let robot = Pose2::new(9.0, 10.0, 0.0);
         let mut f = RouteFollower::new(RepeatConfig::default(), &route, &robot);
-        assert_eq!(f.update(&robot, &g), RepeatState::Following);
+        // Seen, not yet acted on: the robot drives on (the car is 5 m ahead), then detours
+        // once the blockage has stayed put for blockage_confirm_s.
+        assert!(matches!(
+            f.update(&robot, &g, 0.0),
+            RepeatState::Waiting { holding: false, .. }
+        ));
+        assert!(f.detours.is_empty() && !f.holding());
+        assert_eq!(f.update(&robot, &g, 2.0), RepeatState::Following);
         assert_eq!(f.detours.len(), 1);
         let d = &f.detours[0];
         assert!(
@@ -628,7 +739,7 @@ mod tests {
         let k = ahead.iter().position(|p| *p == d.rejoin_m).unwrap();
         assert!(ahead[k..].iter().all(|p| (p.1 - 10.0).abs() < 1e-12));
         // The detour is not replanned while it stays free.
-        assert_eq!(f.update(&robot, &g), RepeatState::Following);
+        assert_eq!(f.update(&robot, &g, 3.0), RepeatState::Following);
         assert_eq!(f.detours.len(), 1);
     }
 
@@ -639,7 +750,85 @@ mod tests {
         block_rect(&mut g, 14.0, 0.0, 15.0, 19.99);
         let robot = Pose2::new(9.0, 10.0, 0.0);
         let mut f = RouteFollower::new(RepeatConfig::default(), &route, &robot);
-        assert!(matches!(f.update(&robot, &g), RepeatState::Blocked(_)));
+        f.update(&robot, &g, 0.0);
+        assert!(matches!(f.update(&robot, &g, 2.5), RepeatState::Blocked(_)));
+        assert!(f.holding(), "a robot that cannot get round holds");
+    }
+
+    #[test]
+    fn a_walker_on_the_route_is_waited_for_not_driven_around() {
+        let route = straight_route();
+        let robot = Pose2::new(9.0, 10.0, 0.0);
+        let mut f = RouteFollower::new(RepeatConfig::default(), &route, &robot);
+        // A person walks along the route ahead, away from the robot, at 1.3 m/s (a 0.6 m
+        // blob, inflated), for 10 s: never a detour; the robot holds while it is close.
+        let mut held = false;
+        for k in 0..=20 {
+            let t = f64::from(k) * 0.5;
+            let x = 10.8 + 1.3 * t;
+            let mut g = empty_grid();
+            block_rect(&mut g, x - 0.3, 9.7, x + 0.3, 10.3);
+            let st = f.update(&robot, &g, t);
+            assert!(!matches!(st, RepeatState::Blocked(_)), "{t}: {st:?}");
+            held |= f.holding();
+        }
+        assert!(held, "held while the walker was within detour_lead_m");
+        assert!(f.detours.is_empty());
+        assert!(!f.holding(), "drives on once it is far");
+        // A group stops and stands on the route: after blockage_confirm_s the robot goes round.
+        let mut g = empty_grid();
+        block_rect(&mut g, 12.0, 9.0, 13.0, 11.0);
+        assert!(matches!(
+            f.update(&robot, &g, 20.0),
+            RepeatState::Waiting { .. }
+        ));
+        assert_eq!(f.update(&robot, &g, 22.0), RepeatState::Following);
+        assert_eq!(f.detours.len(), 1);
+        assert!(f.detours[0].rejoin_m.0 > 13.0);
+        let ahead = f.path_ahead(&robot);
+        assert!(
+            ahead.windows(2).all(|w| segment_free(&g, w[0], w[1])),
+            "{ahead:?}"
+        );
+    }
+
+    #[test]
+    fn a_detour_never_rejoins_an_earlier_detour() {
+        let route = straight_route();
+        let mut g = empty_grid();
+        block_rect(&mut g, 14.0, 8.5, 18.0, 11.5);
+        let robot = Pose2::new(9.0, 10.0, 0.0);
+        let cfg = RepeatConfig {
+            check_ahead_m: 20.0,
+            ..RepeatConfig::default()
+        };
+        let mut f = RouteFollower::new(cfg, &route, &robot);
+        f.update(&robot, &g, 0.0);
+        f.update(&robot, &g, 2.0);
+        assert_eq!(f.detours.len(), 1);
+        // The far side turns out longer: the detour is re-planned, to a taught point.
+        block_rect(&mut g, 14.0, 8.5, 21.0, 11.5);
+        f.update(&robot, &g, 3.0);
+        f.update(&robot, &g, 5.0);
+        let d = f.detours.last().unwrap();
+        assert_eq!(
+            f.detours.len(),
+            1,
+            "a re-plan updates the detour being driven"
+        );
+        assert!(
+            d.replans >= 1 && d.rejoin_m.0 > 21.0 && d.rejoin_m.0 <= 23.0,
+            "{d:?}"
+        );
+        assert!(
+            (d.rejoin_m.1 - 10.0).abs() < 1e-9,
+            "on the taught line: {d:?}"
+        );
+        let ahead = f.path_ahead(&robot);
+        assert!(
+            ahead.windows(2).all(|w| segment_free(&g, w[0], w[1])),
+            "{ahead:?}"
+        );
     }
 
     #[test]
@@ -657,7 +846,7 @@ mod tests {
             &route,
             &robot,
         );
-        f.update(&robot, &g);
+        f.update(&robot, &g, 0.0);
         let p = f
             .waypoints()
             .iter()
@@ -678,7 +867,7 @@ mod tests {
         route.extend((1..=10).map(|i| (15.2 + f64::from(i), 10.0)));
         let robot = Pose2::new(15.0, 10.0, 0.0);
         let mut f = RouteFollower::new(RepeatConfig::default(), &route, &robot);
-        f.update(&robot, &empty_grid());
+        f.update(&robot, &empty_grid(), 0.0);
         let ahead = f.path_ahead(&robot);
         assert!(
             ahead[1].0 > 15.0 && (ahead[1].1 - 10.0).abs() < 0.2,
@@ -692,6 +881,6 @@ mod tests {
         let route = straight_route();
         let robot = Pose2::new(35.0, 10.1, 0.0);
         let mut f = RouteFollower::new(RepeatConfig::default(), &route, &robot);
-        assert_eq!(f.update(&robot, &empty_grid()), RepeatState::Finished);
+        assert_eq!(f.update(&robot, &empty_grid(), 0.0), RepeatState::Finished);
     }
 }

@@ -488,14 +488,19 @@ pub fn run_teach_repeat(
             ));
             if std::env::var_os("TERRANAV_TRACE").is_some() {
                 let est = rig.agent.pose_now().map(|p| p.planar).unwrap_or_default();
+                let cmd = rig.agent.last_cmd();
                 eprintln!(
-                    "trace t {:.1} truth {:.2} {:.2} est {:.2} {:.2} lat {:.3}",
+                    "trace t {:.1} truth {:.2} {:.2} est {:.2} {:.2} lat {:.3} cmd {:.2} {:.2} hold {} err {:?}",
                     rig.t_s(),
                     p.x_m,
                     p.y_m,
                     est.x_m,
                     est.y_m,
-                    lateral.last().map_or(0.0, |l| l.0)
+                    lateral.last().map_or(0.0, |l| l.0),
+                    cmd.v_mps,
+                    cmd.omega_rps,
+                    rig.agent.repeat_holding(),
+                    rig.agent.last_error()
                 );
             }
             if rig.agent.mode() != Mode::Repeat {
