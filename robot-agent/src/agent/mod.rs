@@ -74,6 +74,8 @@ pub struct Agent {
     repeat_paused: bool,
     /// Whether the repeat holds in front of a blockage it waits for (logged once per wait).
     repeat_waiting: bool,
+    /// The last repeat cycle's outcome.
+    repeat_state: Option<RepeatState>,
     recorder: Option<RouteRecorder>,
     gnss: GnssTracker,
     follower: control::Follower,
@@ -131,6 +133,7 @@ impl Agent {
             repeat: None,
             repeat_paused: false,
             repeat_waiting: false,
+            repeat_state: None,
             recorder: None,
             gnss: GnssTracker::new(cfg.gnss.clone()),
             follower: control::Follower::new(cfg.control.clone()),
@@ -742,6 +745,7 @@ impl Agent {
                 let before = f.detours.last().map(|d| (f.detours.len(), d.replans));
                 let state = f.update_with_corridor(&pose.planar, &grid, &corridor, t_s);
                 let waiting = matches!(state, RepeatState::Waiting { holding: true, .. });
+                self.repeat_state = Some(state.clone());
                 if let Some(d) = f.detours.last() {
                     if before != Some((f.detours.len(), d.replans)) {
                         let (cx, cy) = self.mapper.lattice().cell_of(d.blocked_m.0, d.blocked_m.1);
@@ -988,6 +992,11 @@ impl Agent {
     /// The navigator (state, replans).
     pub fn navigator(&self) -> &Navigator {
         &self.nav
+    }
+
+    /// The last repeat cycle's outcome, while repeating.
+    pub fn repeat_state(&self) -> Option<&RepeatState> {
+        self.repeat_state.as_ref()
     }
 
     /// The route follower, while repeating.

@@ -336,6 +336,33 @@ impl RouteFollower {
                 break;
             }
         }
+        // A robot that cut a corner or overshot a zig-zag (a detour's tail doubling back to its
+        // rejoin point) is nearer to a later stretch of the route than to the waypoint it
+        // heads for: it goes on from there instead of turning back. Only the next few metres
+        // are searched, so a route passing near itself is not short-cut.
+        let window = 3.0 * self.cfg.reached_radius_m.max(1.0);
+        let (mut along, mut best) = (0.0, None::<(usize, f64)>);
+        for i in self.next.max(1)..self.wps.len() {
+            let (a, b) = (self.wps[i - 1].p, self.wps[i].p);
+            let d = point_segment_distance(r, a, b);
+            if best.is_none_or(|(_, bd)| d < bd - 1e-9) {
+                best = Some((i, d));
+            }
+            along += dist(a, b);
+            if along > window {
+                break;
+            }
+        }
+        if let Some((i, d)) = best {
+            let current = if self.next >= 1 && self.next < self.wps.len() {
+                point_segment_distance(r, self.wps[self.next - 1].p, self.wps[self.next].p)
+            } else {
+                f64::INFINITY
+            };
+            if i > self.next && d <= self.cfg.reached_radius_m && d < current - 0.05 {
+                self.next = i;
+            }
+        }
     }
 
     fn skip_redundant(&mut self, r: (f64, f64), grid: &PlanGrid) {
@@ -874,6 +901,22 @@ mod tests {
             "loop skipped: {:?}",
             &ahead[..3]
         );
+    }
+
+    #[test]
+    fn a_robot_past_a_zig_zag_goes_on_instead_of_turning_back() {
+        // A detour's tail that doubles back to its rejoin point: 13.4 -> 13.0 -> 13.3 on the
+        // line, and the robot already stands at 14.1 on the route.
+        let mut route: Vec<(f64, f64)> = (0..=13).map(|i| (f64::from(i), 10.0)).collect();
+        route.extend([(13.4, 10.1), (13.0, 10.0), (13.3, 10.05)]);
+        route.extend((14..=30).map(|i| (f64::from(i), 10.0)));
+        let robot = Pose2::new(12.5, 10.0, 0.0);
+        let mut f = RouteFollower::new(RepeatConfig::default(), &route, &robot);
+        f.update(&robot, &empty_grid(), 0.0);
+        let robot = Pose2::new(14.1, 10.0, 0.0);
+        f.update(&robot, &empty_grid(), 0.1);
+        let ahead = f.path_ahead(&robot);
+        assert!(ahead[1].0 > 14.1, "heads on, not back: {:?}", &ahead[..3]);
     }
 
     #[test]

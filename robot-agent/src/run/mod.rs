@@ -502,6 +502,16 @@ pub fn run_teach_repeat(
                     rig.agent.repeat_holding(),
                     rig.agent.last_error()
                 );
+                if let Some(f) = rig.agent.route_follower() {
+                    let (k, n, left) = f.progress(&est);
+                    let path = f.follow_path(&est);
+                    eprintln!(
+                        "trace   repeat {:?} next {k}/{n} ({:?}) left {left:.1} m follow {:?}",
+                        rig.agent.repeat_state(),
+                        f.waypoints().get(k).map(|w| w.taught),
+                        &path[..path.len().min(4)]
+                    );
+                }
             }
             if rig.agent.mode() != Mode::Repeat {
                 break "reached";
