@@ -298,6 +298,16 @@ impl CellData {
     fn evidence(&self) -> Moments {
         self.cur.merged(&self.prev)
     }
+
+    /// Whether the robot's proof that it drove here still holds: it does unless the current
+    /// evidence shows something standing on the driven ground (a car parked, a tree fallen on
+    /// a taught route since), which only observation can judge.
+    fn driven_free(&self, stand_m: f32) -> bool {
+        self.driven && {
+            let ev = self.evidence();
+            ev.n == 0 || ev.zmax <= self.driven_z + stand_m
+        }
+    }
 }
 
 struct TileSlot {
@@ -907,6 +917,7 @@ impl Mapper {
         let touched = std::mem::take(&mut self.win.pass_touched);
         let min_passes = self.cfg.clear_min_beams.max(1);
         let margin = self.cfg.clear_margin_m as f32;
+        let stand_m = self.cfg.stray_height_m as f32;
         for &i in &touched {
             let (cx, cy) = self.win.global(i);
             let (n, lo) = (self.win.pass_n[i], self.win.pass_lo[i]);
@@ -919,7 +930,7 @@ impl Mapper {
             let Some(d) = self.data(cx, cy) else {
                 continue;
             };
-            if d.driven {
+            if d.driven_free(stand_m) {
                 continue;
             }
             let stale = n >= min_passes
@@ -1109,7 +1120,7 @@ impl Mapper {
             }
             let Some(d) = self.data(cx, cy) else { continue };
             let old = d.class;
-            let new = if d.driven {
+            let new = if d.driven_free(self.cfg.stray_height_m as f32) {
                 Class::Traversable
             } else {
                 let nb = self.neighbourhood(cx, cy);

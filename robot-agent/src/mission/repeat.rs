@@ -72,7 +72,7 @@ impl Default for RepeatConfig {
             reached_radius_m: 0.6,
             skip_radius_m: 1.0,
             check_ahead_m: 8.0,
-            corridor_margin_m: 0.1,
+            corridor_margin_m: 0.0,
             push_max_m: 0.6,
             waypoint_spacing_m: 1.0,
             rejoin_search_m: 20.0,
