@@ -13,9 +13,9 @@
 //! 4. per known cell: the cost (predicted from the class and that distance: the codec learns
 //!    the mapper's cost-of-distance function as it goes, so it needs no mapper parameters; else
 //!    the west or south neighbour's), the height (residual of the west/south mean in contexts
-//!    of local activity and of the neighbours' residuals), the evidence (3 bits in the context of two neighbours'), and the
-//!    stamp ("same as a neighbour" flags in the context of the neighbours' agreement, else a
-//!    residual).
+//!    of local activity and of the neighbours' residuals), the evidence (3 bits in the context
+//!    of two neighbours'), and the stamp ("same as a neighbour" flags in the context of the
+//!    neighbours' agreement, else a residual).
 
 use super::range_coder::{prob, BitCoder, Decoder, Encoder, Prob, ResidualModel, TreeModel};
 use super::{
@@ -56,7 +56,7 @@ struct Models {
     cost_of_key: [Option<u8>; COST_KEYS],
     heights: Vec<ResidualModel>,
     hits: Vec<TreeModel>,
-    stamp_first: Vec<TreeModel>,
+    stamp_first: TreeModel,
     stamp_same: Vec<Prob>,
     stamps: Vec<ResidualModel>,
 }
@@ -72,7 +72,7 @@ impl Models {
             cost_of_key: [None; COST_KEYS],
             heights: vec![ResidualModel::default(); 216],
             hits: vec![TreeModel::new(3); 81],
-            stamp_first: vec![TreeModel::new(8); 4],
+            stamp_first: TreeModel::new(8),
             stamp_same: vec![prob(); 32 * STAMP_CANDS],
             stamps: vec![ResidualModel::default(); 2],
         }
@@ -362,7 +362,7 @@ fn code_stamp<C: BitCoder>(
     let cands = &cands[..len];
     let Some(&base) = cands.first() else {
         // The tile's first stamp: 32 bits, the top byte modelled (it rarely changes).
-        let hi = m.stamp_first[0].code(c, (q_in >> 24) as u32 & 0xFF);
+        let hi = m.stamp_first.code(c, (q_in >> 24) as u32 & 0xFF);
         let lo = c.code_direct(q_in as u32 & 0xFF_FFFF, 24);
         return (i64::from(hi) << 24) | i64::from(lo);
     };

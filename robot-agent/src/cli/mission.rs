@@ -46,8 +46,8 @@ pub struct MissionArgs {
     /// Start pose `X,Y,YAW_DEG` instead of the scenario's.
     #[arg(long, value_name = "X,Y,YAW_DEG", allow_hyphen_values = true)]
     pub start: Option<String>,
-    /// Headless goal: draw the robot's traversability map with the driven path (truth) and the
-    /// goal into this PNG at the end.
+    /// Headless goal or teach and repeat: draw the robot's traversability map with the driven
+    /// path (truth; for teach and repeat the return) and the goal into this PNG at the end.
     #[arg(long, value_name = "FILE")]
     pub png: Option<PathBuf>,
 }
@@ -92,6 +92,7 @@ fn options(args: &MissionArgs, seed: u64) -> anyhow::Result<HeadlessOptions> {
         seed,
         timeout_s: args.timeout,
         start,
+        map_png: args.png.clone(),
         ..HeadlessOptions::default()
     })
 }

@@ -29,6 +29,9 @@ pub struct HeadlessOptions {
     pub start: Option<Pose2>,
     /// Stop at the first collision.
     pub stop_on_collision: bool,
+    /// Teach and repeat: draw the robot's map with the repeat's driven path (truth) into this
+    /// PNG at the end.
+    pub map_png: Option<std::path::PathBuf>,
 }
 
 impl Default for HeadlessOptions {
@@ -38,6 +41,7 @@ impl Default for HeadlessOptions {
             timeout_s: 600.0,
             start: None,
             stop_on_collision: true,
+            map_png: None,
         }
     }
 }
@@ -546,6 +550,20 @@ pub fn run_teach_repeat(
         .iter()
         .map(|d| obstacles.map_or(0.0, |o| o.distance_to(d.rejoin_m)))
         .collect();
+    if let Some(png) = &opts.map_png {
+        use anyhow::Context;
+        let file =
+            std::fs::File::create(png).with_context(|| format!("creating {}", png.display()))?;
+        let path: Vec<(f64, f64)> = lateral.iter().map(|(_, p)| *p).collect();
+        mapping::render::render_png(
+            rig.agent.mapper(),
+            None,
+            3,
+            &path,
+            std::io::BufWriter::new(file),
+        )
+        .with_context(|| format!("drawing {}", png.display()))?;
+    }
     let truth = rig.truth();
     Ok(TeachRepeatReport {
         outcome: if rig.collisions > collisions_before {
