@@ -371,8 +371,12 @@ pub struct TeachRepeatReport {
     pub tracking_max_m: f64,
     /// Detours spliced in.
     pub detours: u32,
-    /// Per detour: distance along the route from the obstacle's far edge to the rejoin point, metres.
+    /// Per detour: straight-line distance from the rejoin point to the nearest added obstacle's
+    /// footprint, metres.
     pub rejoin_distance_m: Vec<f64>,
+    /// Where detours began that no added obstacle explains (blocked point more than 3 m from
+    /// every added obstacle), map frame, metres.
+    pub unexplained_detours_m: Vec<[f64; 2]>,
     /// Collisions (truth).
     pub collisions: u32,
     /// Distance from the taught start (home) at the end, metres.
@@ -550,6 +554,13 @@ pub fn run_teach_repeat(
         .iter()
         .map(|d| obstacles.map_or(0.0, |o| o.distance_to(d.rejoin_m)))
         .collect();
+    // Detours whose blockage is nowhere near an added obstacle: the mapper saw something on a
+    // free stretch (or a walker stood there long enough).
+    let unexplained_detours_m = detours
+        .iter()
+        .filter(|d| obstacles.is_none_or(|o| o.distance_to(d.blocked_m) > 3.0))
+        .map(|d| [d.blocked_m.0, d.blocked_m.1])
+        .collect();
     if let Some(png) = &opts.map_png {
         use anyhow::Context;
         let file =
@@ -575,6 +586,7 @@ pub fn run_teach_repeat(
         tracking_max_m: max,
         detours: detours.len() as u32,
         rejoin_distance_m,
+        unexplained_detours_m,
         collisions: rig.collisions - collisions_before,
         final_error_m: (truth.x_m - home.0).hypot(truth.y_m - home.1),
         waypoints,
