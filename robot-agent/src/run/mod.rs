@@ -497,13 +497,20 @@ pub fn run_teach_repeat(
             if std::env::var_os("TERRANAV_TRACE").is_some() {
                 let est = rig.agent.pose_now().map(|p| p.planar).unwrap_or_default();
                 let cmd = rig.agent.last_cmd();
+                let z_truth = rig.sim.truth_pose().translation.vector.z;
+                let z_est = rig
+                    .agent
+                    .pose_now()
+                    .map_or(f64::NAN, |p| p.iso.translation.vector.z);
                 eprintln!(
-                    "trace t {:.1} truth {:.2} {:.2} est {:.2} {:.2} lat {:.3} cmd {:.2} {:.2} hold {} err {:?}",
+                    "trace t {:.1} truth {:.2} {:.2} {:.3} est {:.2} {:.2} {:.3} lat {:.3} cmd {:.2} {:.2} hold {} err {:?}",
                     rig.t_s(),
                     p.x_m,
                     p.y_m,
+                    z_truth,
                     est.x_m,
                     est.y_m,
+                    z_est,
                     lateral.last().map_or(0.0, |l| l.0),
                     cmd.v_mps,
                     cmd.omega_rps,
