@@ -72,9 +72,7 @@ pub struct Agent {
     nav: Navigator,
     repeat: Option<(RouteFollower, Route)>,
     repeat_paused: bool,
-    /// Whether the repeat holds in front of a blockage it waits for (logged once per wait).
-    repeat_waiting: bool,
-    /// The last repeat cycle's outcome.
+    /// The last repeat cycle's outcome (a wait is logged when it begins).
     repeat_state: Option<RepeatState>,
     recorder: Option<RouteRecorder>,
     gnss: GnssTracker,
@@ -132,7 +130,6 @@ impl Agent {
             nav: Navigator::new(cfg.nav.clone(), cfg.planner.clone()),
             repeat: None,
             repeat_paused: false,
-            repeat_waiting: false,
             repeat_state: None,
             recorder: None,
             gnss: GnssTracker::new(cfg.gnss.clone()),
@@ -744,7 +741,11 @@ impl Agent {
             if let Some((f, _)) = self.repeat.as_mut() {
                 let before = f.detours.last().map(|d| (f.detours.len(), d.replans));
                 let state = f.update_with_corridor(&pose.planar, &grid, &corridor, t_s);
-                let waiting = matches!(state, RepeatState::Waiting { holding: true, .. });
+                // A wait is logged once, when it begins.
+                let was_waiting = matches!(
+                    self.repeat_state,
+                    Some(RepeatState::Waiting { holding: true, .. })
+                );
                 self.repeat_state = Some(state.clone());
                 if let Some(d) = f.detours.last() {
                     if before != Some((f.detours.len(), d.replans)) {
@@ -766,7 +767,7 @@ impl Agent {
                 match state {
                     RepeatState::Following => {}
                     RepeatState::Waiting { at_m, holding } => {
-                        if holding && !self.repeat_waiting {
+                        if holding && !was_waiting {
                             tracing::info!(
                                 "repeat: waiting for the route to clear at ({:.1}, {:.1})",
                                 at_m.0,
@@ -786,7 +787,6 @@ impl Agent {
                         self.nav.stop("route finished");
                     }
                 }
-                self.repeat_waiting = waiting;
             }
             return true;
         }
@@ -840,9 +840,7 @@ impl Agent {
                     Cmd::default()
                 }
             }
-            Mode::Repeat if self.repeat.as_ref().is_some_and(|(f, _)| f.holding()) => {
-                Cmd::default()
-            }
+            Mode::Repeat if self.repeat_holding() => Cmd::default(),
             Mode::Repeat if !self.repeat_paused => {
                 let path = self
                     .repeat

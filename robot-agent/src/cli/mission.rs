@@ -137,18 +137,9 @@ pub fn run_headless(scenario: &sim::Scenario, args: &MissionArgs, seed: u64) -> 
     };
     let (rep, rig) = run::run_goal_rig(scenario, cfg, target, &opts)?;
     if let Some(png) = &args.png {
-        let file =
-            std::fs::File::create(png).with_context(|| format!("creating {}", png.display()))?;
         let mut path = rep.trajectory_m.clone();
         path.push(rep.final_m);
-        mapping::render::render_png(
-            rig.agent.mapper(),
-            None,
-            3,
-            &path,
-            std::io::BufWriter::new(file),
-        )
-        .with_context(|| format!("drawing {}", png.display()))?;
+        rig.draw_map(&path, png)?;
         eprintln!("map drawn to {}", png.display());
     }
     eprintln!(

@@ -707,6 +707,14 @@ mod tests {
         PlanGrid::new(200, 100, 0.2, (0.0, 0.0))
     }
 
+    fn assert_path_ahead_free(f: &RouteFollower, robot: &Pose2, g: &PlanGrid) {
+        let ahead = f.path_ahead(robot);
+        assert!(
+            ahead.windows(2).all(|w| segment_free(g, w[0], w[1])),
+            "{ahead:?}"
+        );
+    }
+
     fn block_rect(g: &mut PlanGrid, x0: f64, y0: f64, x1: f64, y1: f64) {
         let (cx0, cy0) = g.world_to_cell_unbounded(x0, y0);
         let (cx1, cy1) = g.world_to_cell_unbounded(x1, y1);
@@ -812,11 +820,7 @@ mod tests {
         assert_eq!(f.update(&robot, &g, 22.0), RepeatState::Following);
         assert_eq!(f.detours.len(), 1);
         assert!(f.detours[0].rejoin_m.0 > 13.0);
-        let ahead = f.path_ahead(&robot);
-        assert!(
-            ahead.windows(2).all(|w| segment_free(&g, w[0], w[1])),
-            "{ahead:?}"
-        );
+        assert_path_ahead_free(&f, &robot, &g);
     }
 
     #[test]
@@ -851,11 +855,7 @@ mod tests {
             (d.rejoin_m.1 - 10.0).abs() < 1e-9,
             "on the taught line: {d:?}"
         );
-        let ahead = f.path_ahead(&robot);
-        assert!(
-            ahead.windows(2).all(|w| segment_free(&g, w[0], w[1])),
-            "{ahead:?}"
-        );
+        assert_path_ahead_free(&f, &robot, &g);
     }
 
     #[test]

@@ -176,6 +176,22 @@ impl Rig {
         Pose2::from_isometry3(&self.sim.truth_pose())
     }
 
+    /// Draws the robot's traversability map with `path_m` over it into the PNG `out`.
+    pub fn draw_map(&self, path_m: &[(f64, f64)], out: &std::path::Path) -> anyhow::Result<()> {
+        use anyhow::Context;
+        let file =
+            std::fs::File::create(out).with_context(|| format!("creating {}", out.display()))?;
+        mapping::render::render_png(
+            self.agent.mapper(),
+            None,
+            3,
+            path_m,
+            std::io::BufWriter::new(file),
+        )
+        .with_context(|| format!("drawing {}", out.display()))?;
+        Ok(())
+    }
+
     /// One simulator step: sensors into the agent, the agent's command into the plant.
     /// `override_cmd` replaces the agent's command (teach drives by teleop through the agent's
     /// own teleop path instead, so this is only for tests).
@@ -569,18 +585,8 @@ pub fn run_teach_repeat(
         .map(|d| [d.blocked_m.0, d.blocked_m.1])
         .collect();
     if let Some(png) = &opts.map_png {
-        use anyhow::Context;
-        let file =
-            std::fs::File::create(png).with_context(|| format!("creating {}", png.display()))?;
         let path: Vec<(f64, f64)> = lateral.iter().map(|(_, p)| *p).collect();
-        mapping::render::render_png(
-            rig.agent.mapper(),
-            None,
-            3,
-            &path,
-            std::io::BufWriter::new(file),
-        )
-        .with_context(|| format!("drawing {}", png.display()))?;
+        rig.draw_map(&path, png)?;
     }
     let truth = rig.truth();
     Ok(TeachRepeatReport {
