@@ -46,6 +46,11 @@ pub struct SafetyVerdict {
     pub points_in_zone: usize,
     /// Distance from the body outline to the nearest obstacle point (in the height band), metres.
     pub clearance_m: f64,
+    /// Something stands inside the circle the body's corners sweep when turning in place (plus
+    /// `stop_side_m`): turning would hit it, so the robot must not turn either.
+    pub turn_blocked: bool,
+    /// Points inside that circle (outside the body).
+    pub points_in_swept: usize,
 }
 
 impl Default for SafetyVerdict {
@@ -54,6 +59,8 @@ impl Default for SafetyVerdict {
             stop: false,
             points_in_zone: 0,
             clearance_m: f64::INFINITY,
+            turn_blocked: false,
+            points_in_swept: 0,
         }
     }
 }
@@ -64,6 +71,7 @@ pub fn check(
     points_base: impl IntoIterator<Item = (f64, f64, f64)>,
 ) -> SafetyVerdict {
     let (hl, hw) = (cfg.body_length_m / 2.0, cfg.body_width_m / 2.0);
+    let swept_r2 = (hl.hypot(hw) + cfg.stop_side_m).powi(2);
     let mut v = SafetyVerdict::default();
     for (x, y, z) in points_base {
         if !(x.is_finite() && y.is_finite() && z.is_finite())
@@ -84,8 +92,12 @@ pub fn check(
         if ahead || beside {
             v.points_in_zone += 1;
         }
+        if x * x + y * y <= swept_r2 {
+            v.points_in_swept += 1;
+        }
     }
     v.stop = v.points_in_zone >= cfg.min_points;
+    v.turn_blocked = v.points_in_swept >= cfg.min_points;
     v
 }
 
@@ -111,5 +123,21 @@ mod tests {
         assert!(!check(&c, own_mast).stop);
         assert!(!check(&c, vec![(0.6, 0.0, 0.5)]).stop, "one stray return");
         assert!(!check(&c, vec![(f64::NAN, 0.0, 0.5); 5]).stop);
+    }
+
+    #[test]
+    fn a_person_at_the_corner_blocks_turning_but_not_one_beyond_the_swept_circle() {
+        let c = SafetyConfig::default();
+        // Beside the front corner, 0.15 m out: outside the stop zones, inside the swept circle
+        // (radius 0.61 m + 0.08 m).
+        let near: Vec<_> = (0..6)
+            .map(|i| (0.3, 0.5 + f64::from(i) * 0.01, 0.8))
+            .collect();
+        let v = check(&c, near);
+        assert!(!v.stop && v.turn_blocked, "{v:?}");
+        let far: Vec<_> = (0..6)
+            .map(|i| (0.3, 0.8 + f64::from(i) * 0.01, 0.8))
+            .collect();
+        assert!(!check(&c, far).turn_blocked);
     }
 }

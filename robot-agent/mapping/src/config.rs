@@ -45,6 +45,10 @@ pub struct Config {
     // --- 4. Classification ---
     /// Cells farther than this from the robot are not (re)classified, metres.
     pub processing_distance_m: f64,
+    /// Beyond `processing_distance_m` and up to this distance, a cell judged traversable from
+    /// within it on its own close evidence becomes an obstacle when the profile step test fires
+    /// on newer, distant evidence around it (never the reverse); 0 turns this off, metres.
+    pub far_step_distance_m: f64,
     /// Minimum points in the 3x3 neighbourhood of a cell before it is classified
     /// (`points_around_threshold`); fewer leaves it undecided.
     pub points_around_threshold: u32,
@@ -141,6 +145,7 @@ impl Default for Config {
             ],
             ceiling_radius_cells: 3,
             processing_distance_m: 12.0,
+            far_step_distance_m: 20.0,
             points_around_threshold: 12,
             min_points_per_cell: 2,
             max_variance_m2: 0.0017,
@@ -212,6 +217,11 @@ impl Config {
         bad(
             self.processing_distance_m > 0.0,
             "processing_distance_m must be positive",
+        )?;
+        bad(
+            self.far_step_distance_m == 0.0
+                || self.far_step_distance_m >= self.processing_distance_m,
+            "far_step_distance_m must be 0 (off) or at least processing_distance_m",
         )?;
         bad(
             self.max_variance_m2 > 0.0,

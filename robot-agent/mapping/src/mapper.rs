@@ -1,7 +1,7 @@
 //! The incremental traversability mapper: evidence per lattice cell, dirty-cell reclassification,
 //! inflation, proprioception, negative obstacles, and changed tiles out.
 
-use crate::classify::{CellStats, Class, Neighbourhood, Rules};
+use crate::classify::{CellStats, Class, Neighbourhood, Rules, Verdict};
 use crate::config::Config;
 use crate::filters;
 use common::grid::{Cell, CellState, Lattice, Tile, TileIndex};
@@ -219,6 +219,20 @@ impl Moments {
             szz: self.szz + o.szz,
             zmax: self.zmax.max(o.zmax),
             zmin: self.zmin.min(o.zmin),
+        }
+    }
+    /// The same points moved up by `dz`.
+    fn shifted(&self, dz: f64) -> Moments {
+        if self.n == 0 {
+            return *self;
+        }
+        let n = f64::from(self.n);
+        Moments {
+            n: self.n,
+            sz: self.sz + n * dz,
+            szz: self.szz + 2.0 * dz * self.sz + n * dz * dz,
+            zmax: self.zmax + dz as f32,
+            zmin: self.zmin + dz as f32,
         }
     }
     fn stats(&self) -> CellStats {
@@ -815,6 +829,80 @@ impl Mapper {
         rep
     }
 
+    /// The map frame moved under the robot by `delta` (a GNSS correction of the pose: new map
+    /// point = `delta` * old). Stored heights within `radius_m` of the robot and changed within
+    /// the last `max_age_s` follow it, since they were seen under the same SLAM drift as the
+    /// scans still to come; left alone, a correction of the frame's tilt or height would set
+    /// new scans of the same ground off against them as false steps. Older cells keep the
+    /// frame they were seen in (they were placed by the corrections of their time, and SLAM
+    /// has drifted since). Horizontal moves are ignored (a few centimetres, within a cell).
+    /// Returns the cells moved.
+    pub fn follow_frame(&mut self, delta: &Isometry3<f64>, radius_m: f64, max_age_s: f64) -> usize {
+        let Some(robot) = self.robot else { return 0 };
+        let oldest = self.last_t_s.unwrap_or(0.0) - max_age_s;
+        let dz_at = |x: f64, y: f64, z: f64| (delta * nalgebra::Point3::new(x, y, z)).z - z;
+        let corners = [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)];
+        let worst = corners
+            .iter()
+            .map(|(sx, sy)| {
+                dz_at(
+                    robot.x_m + sx * radius_m,
+                    robot.y_m + sy * radius_m,
+                    robot.z_m,
+                )
+                .abs()
+            })
+            .fold(0.0, f64::max);
+        // Nothing to do for a purely horizontal correction (or a non-finite one).
+        if !worst.is_finite() || worst <= 1e-5 {
+            return 0;
+        }
+        let n = self.lattice.tile_cells as i64;
+        let l = self.cfg.grid_size_m;
+        let r2 = radius_m * radius_m;
+        let mut moved = 0;
+        for slot in &mut self.slots {
+            let (x0, y0) = (i64::from(slot.index.tx) * n, i64::from(slot.index.ty) * n);
+            // Skip tiles wholly outside the radius.
+            let tile_m = n as f64 * l;
+            let (tx, ty) = (x0 as f64 * l, y0 as f64 * l);
+            let nx = robot.x_m.clamp(tx, tx + tile_m) - robot.x_m;
+            let ny = robot.y_m.clamp(ty, ty + tile_m) - robot.y_m;
+            if nx * nx + ny * ny > r2 {
+                continue;
+            }
+            for (i, d) in slot.data.iter_mut().enumerate() {
+                let (c, r) = ((i as i64) % n, (i as i64) / n);
+                let x = (x0 + c) as f64 * l + 0.5 * l;
+                let y = (y0 + r) as f64 * l + 0.5 * l;
+                let (ex, ey) = (x - robot.x_m, y - robot.y_m);
+                if ex * ex + ey * ey > r2
+                    || (d.cur.n == 0 && d.prev.n == 0 && !d.driven)
+                    || f64::from(d.stamp_s) + 1.0 < oldest
+                {
+                    continue;
+                }
+                let z = if d.cur.n > 0 {
+                    d.cur.stats().mean_m
+                } else {
+                    robot.z_m
+                };
+                let dz = dz_at(x, y, z);
+                d.cur = d.cur.shifted(dz);
+                d.prev = d.prev.shifted(dz);
+                d.pending = d.pending.shifted(dz);
+                if d.driven {
+                    d.driven_z += dz as f32;
+                }
+                moved += 1;
+            }
+        }
+        if let Some(r) = self.robot.as_mut() {
+            r.z_m += dz_at(r.x_m, r.y_m, r.z_m);
+        }
+        moved
+    }
+
     /// Publishes every changed tile now, ignoring the rate limit.
     pub fn flush_tiles(&mut self, t_s: f64) -> Vec<Tile> {
         self.take_tiles(t_s, true)
@@ -1109,9 +1197,29 @@ impl Mapper {
         let mut refreshed: Vec<(i64, i64)> = Vec::new();
         for &(cx, cy) in &todo {
             if !within(cx, cy) {
-                if self.data(cx, cy).is_some() {
+                if let Some(d) = self.data(cx, cy).copied() {
                     if !self.full {
                         self.pending.insert((cx, cy));
+                    }
+                    // A cell judged traversable from close by, on its own close evidence, may
+                    // still turn into an obstacle from out here: the lower side of a step that
+                    // lay in the step's shadow when the robot passed shows up in a later,
+                    // distant view. Only that way round (distant evidence never clears), and
+                    // only for the profile step test.
+                    let pd = self.cfg.processing_distance_m as f32;
+                    if self.cfg.far_step_distance_m > 0.0
+                        && d.class == Class::Traversable
+                        && d.class_range_m <= pd
+                        && d.cur_range_m.min(d.prev_range_m) <= pd
+                        && !d.driven_free(self.cfg.stray_height_m as f32)
+                    {
+                        let (px, py) = self.lattice.cell_center_m(cx, cy);
+                        if norm2(px - robot.x_m, py - robot.y_m) <= self.cfg.far_step_distance_m
+                            && self.shadowed_step(cx, cy, &d)
+                        {
+                            self.data_mut(cx, cy).class = Class::Obstacle;
+                            changed.push((cx, cy));
+                        }
                     }
                     // Not classified out here, but its height is news for the tile.
                     refreshed.push((cx, cy));
@@ -1439,6 +1547,26 @@ impl Mapper {
     }
 
     /// True when an 8-neighbour is a drop-off without evidence enough to be observed.
+    /// Whether the profile step test fires at a cell because of a neighbour seen only from
+    /// beyond the processing distance that lies lower than the cell: the far side of a raised
+    /// edge, in the edge's shadow while the robot passed on the near side. Far views that make
+    /// a neighbour look higher (grass tops at grazing angles) do not count.
+    fn shadowed_step(&self, cx: i64, cy: i64, d: &CellData) -> bool {
+        let pd = self.cfg.processing_distance_m as f32;
+        let own = d.evidence().stats();
+        let lower_far = (-1..=1)
+            .flat_map(|dy| (-1..=1).map(move |dx| (dx, dy)))
+            .any(|(dx, dy)| {
+                self.data(cx + dx, cy + dy).is_some_and(|n| {
+                    let e = n.evidence();
+                    e.n >= self.rules.min_points()
+                        && n.cur_range_m.min(n.prev_range_m) > pd
+                        && e.stats().mean_m < own.mean_m - 0.5 * self.cfg.max_step_m
+                })
+            });
+        lower_far && self.rules.classify(&self.neighbourhood(cx, cy)) == Verdict::Step
+    }
+
     fn beside_drop(&self, cx: i64, cy: i64) -> bool {
         (-1..=1).any(|dy| {
             (-1..=1).any(|dx| {
@@ -1618,14 +1746,48 @@ impl Mapper {
         self.rules.classify(&self.neighbourhood(cx, cy))
     }
 
-    /// Lowest and highest point of a cell's evidence (diagnostics, evaluation).
-    pub fn debug_range(&self, cx: i64, cy: i64) -> Option<(f32, f32)> {
+    /// Lowest and highest point of a cell's current evidence, metres (None: no returns).
+    pub fn height_range(&self, cx: i64, cy: i64) -> Option<(f32, f32)> {
         let e = self.data(cx, cy)?.evidence();
         (e.n > 0).then_some((e.zmin, e.zmax))
     }
 
-    /// Evidence statistics of one cell (diagnostics).
-    pub fn debug_stats(&self, cx: i64, cy: i64) -> CellStats {
+    /// One line on why a cell is what it is (logs and diagnostics): class, the rules' verdict
+    /// now, both evidence epochs, proprioception, last change.
+    pub fn describe(&self, cx: i64, cy: i64) -> String {
+        let Some(d) = self.data(cx, cy) else {
+            return format!("cell ({cx}, {cy}) never observed");
+        };
+        let ep = |m: &Moments| {
+            let s = m.stats();
+            if m.n == 0 {
+                "-".to_string()
+            } else {
+                format!(
+                    "n {} mean {:.3} sd {:.3} [{:.3}, {:.3}]",
+                    m.n,
+                    s.mean_m,
+                    s.var_m2.sqrt(),
+                    m.zmin,
+                    m.zmax
+                )
+            }
+        };
+        format!(
+            "cell ({cx}, {cy}) {:?} (rules now: {:?}); cur {} | prev {}; driven {} at {:.3}; changed {} s; judged from {:.1} m",
+            d.class,
+            self.explain(cx, cy),
+            ep(&d.cur),
+            ep(&d.prev),
+            d.driven,
+            d.driven_z,
+            d.stamp_s,
+            d.class_range_m
+        )
+    }
+
+    /// Height statistics of one cell's current evidence (n = 0: none).
+    pub fn height_stats(&self, cx: i64, cy: i64) -> CellStats {
         self.data(cx, cy)
             .map(|d| d.evidence().stats())
             .unwrap_or_default()

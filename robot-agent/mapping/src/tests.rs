@@ -335,7 +335,7 @@ fn debug_steps() {
     for cy in (-3..=7).rev() {
         let mut s = String::new();
         for cx in 17..=22 {
-            let nb = m.debug_stats(cx, cy);
+            let nb = m.height_stats(cx, cy);
             s += &format!(
                 "{:?}/{}/{:.3}/{:.4} ",
                 m.class(cx, cy),
@@ -346,4 +346,98 @@ fn debug_steps() {
         }
         println!("{cy}: {s}");
     }
+}
+
+/// A GNSS correction lifts the map frame by 10 cm halfway along a drive: the scans after it see
+/// the same flat ground 10 cm higher. Cells seen just before follow the frame (no step appears
+/// between old and new evidence); without following, the seam would be a wall of false steps.
+#[test]
+fn cells_follow_a_frame_correction_and_old_cells_keep_theirs() {
+    let lift = 0.1;
+    let run = |follow: bool| {
+        let mut m = Mapper::new(Config::default()).unwrap();
+        // An old visit far back in time, then the drive.
+        drive(
+            &mut m,
+            &|_, _, _| 0.0,
+            &line((-30.0, 0.0), (-29.0, 0.0), 0.0, 1.0),
+        );
+        drive(
+            &mut m,
+            &|_, _, _| 0.0,
+            &line((-3.0, 0.0), (0.0, 0.0), 100.0, 3.0),
+        );
+        if follow {
+            let delta = nalgebra::Isometry3::translation(0.0, 0.0, lift);
+            let moved = m.follow_frame(&delta, 30.0, 20.0);
+            assert!(moved > 1000, "{moved} cells moved");
+        }
+        drive(
+            &mut m,
+            &|_, _, _| lift,
+            &line((0.0, 0.0), (3.0, 0.0), 103.1, 3.0),
+        );
+        m
+    };
+    let m = run(true);
+    let v = classes_in(&m, -8.0, -8.0, 8.0, 8.0);
+    let obst = count(&v, Class::is_obstacle);
+    assert_eq!(obst, 0, "{obst} false obstacles after following the frame");
+    let (cx, cy) = cell_of(&m, -3.0, 4.0);
+    let h = m.height_m(cx, cy).unwrap();
+    assert!((h - lift).abs() < 0.03, "followed cell at {h} m");
+    // The cells seen 100 s earlier, 30 m away, kept their frame.
+    let (cx, cy) = cell_of(&m, -33.0, 0.0);
+    let h = m.height_m(cx, cy).unwrap();
+    assert!(h.abs() < 0.03, "old cell moved to {h} m");
+
+    let m = run(false);
+    let v = classes_in(&m, -8.0, -8.0, 8.0, 8.0);
+    assert!(
+        count(&v, Class::is_obstacle) > 20,
+        "the control run should show the seam"
+    );
+}
+
+/// A 0.3 m wide strip at y = 0 that is a 6 cm rise from the ground on its north side and a 10 cm
+/// drop to the ground on its south side. Passed at 2.5 m on the north side, the drop lies in the
+/// strip's shadow; a later pass 13 m to the south (beyond `processing_distance_m`) shows it.
+fn strip(x: f64, y: f64, _t: f64) -> f64 {
+    if y > 0.15 {
+        0.04
+    } else if x.abs() <= 4.0 && y >= -0.15 {
+        0.1
+    } else {
+        0.0
+    }
+}
+
+#[test]
+fn a_later_distant_view_of_a_steps_shadowed_side_marks_the_step() {
+    let run = |world: &dyn Fn(f64, f64, f64) -> f64, far_step_m: f64| {
+        let cfg = Config {
+            far_step_distance_m: far_step_m,
+            ..Config::default()
+        };
+        let mut m = Mapper::new(cfg).unwrap();
+        drive(&mut m, world, &line((-6.0, 2.5), (6.0, 2.5), 0.0, 12.0));
+        drive(
+            &mut m,
+            world,
+            &line((8.0, -13.1), (-8.0, -13.1), 20.0, 16.0),
+        );
+        count(&classes_in(&m, -3.5, -0.3, 3.5, 0.3), Class::is_obstacle)
+    };
+    let (with, without) = (run(&strip, 20.0), run(&strip, 0.0));
+    eprintln!("strip obstacle cells: {with} with the far-step rule, {without} without");
+    assert!(
+        with >= 30,
+        "only {with} strip cells are obstacles (without the rule {without})"
+    );
+    assert!(
+        without < with / 2,
+        "the north pass alone found {without} of {with}"
+    );
+    // Flat ground seen the same two ways gains no obstacles.
+    assert_eq!(run(&|_, _, _| 0.0, 20.0), 0);
 }

@@ -341,15 +341,23 @@ impl Simulation {
         };
         for (i, c) in self.walker_clock.iter_mut().enumerate() {
             if gap > 0.0 {
-                let (Some(now), Some(ahead)) = (
-                    self.world.walker_position(i, *c),
-                    self.world
-                        .walker_position(i, *c + self.cfg.walker_lookahead_s),
-                ) else {
+                let Some(now) = self.world.walker_position(i, *c) else {
                     continue;
                 };
                 let d_now = foot.distance_to(now[0], now[1]);
-                let d_ahead = foot.distance_to(ahead[0], ahead[1]);
+                // The closest the next `walker_lookahead_s` of the script comes to the robot,
+                // not just where it ends: a walker passing the robot's side at 1.3 m/s covers
+                // more than the body's length in a second and would brush it on the way.
+                const SAMPLES: usize = 10;
+                let la = self.cfg.walker_lookahead_s;
+                let d_ahead = (1..=SAMPLES)
+                    .filter_map(|k| {
+                        let q = self
+                            .world
+                            .walker_position(i, *c + la * k as f64 / SAMPLES as f64)?;
+                        Some(foot.distance_to(q[0], q[1]))
+                    })
+                    .fold(f64::INFINITY, f64::min);
                 let r = self.world.walker_radius(i);
                 if d_ahead - r < gap && d_ahead < d_now {
                     self.walker_wait_s += h;
@@ -565,6 +573,27 @@ yaw_deg = 0.0
         let a = sim.world().walkers_at(1.0)[0];
         let b = sim.world().walkers_at(2.0)[0];
         assert!(((b.y_m - a.y_m).abs() - 1.3).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_runner_passing_close_beside_a_standing_robot_waits_instead_of_brushing_it() {
+        // A runner (2.5 m/s, radius 0.35 m) on a line 0.3 m from the robot's side, starting
+        // 0.7 m behind its rear: where it will be a second later is farther from the robot than
+        // where it is, so only the path between, past the robot's flank, comes close.
+        let sc = scenario(
+            "[[walker]]\npoints = [[-6.0, 0.65], [6.0, 0.65]]\nmode = \"ping_pong\"\nphase_m = 4.8\nspeed_mps = 2.5\nradius_m = 0.35\n",
+        );
+        let mut sim = Simulation::new(&sc, cfg(1));
+        let mut hits = 0;
+        for _ in 0..500 {
+            hits += sim.step(0.02, 0.0, 0.0).collisions.len();
+        }
+        assert_eq!(hits, 0, "the walker walked into the robot");
+        assert!(
+            sim.walker_wait_s() > 5.0,
+            "waited {} s",
+            sim.walker_wait_s()
+        );
     }
 
     #[test]

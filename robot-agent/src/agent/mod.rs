@@ -14,6 +14,7 @@ use crate::mission::gnss::{GnssGoal, GnssTracker};
 use crate::mission::navigate::{Goal, Navigator};
 use crate::mission::repeat::{RepeatState, RouteFollower};
 use crate::mission::teach::RouteRecorder;
+use crate::mission::teach_view::{TaughtCell, TeachView};
 use common::geo::LocalFrame;
 use common::geom::Pose2;
 use common::grid::{Lattice, Tile};
@@ -75,6 +76,10 @@ pub struct Agent {
     /// The last repeat cycle's outcome (a wait is logged when it begins).
     repeat_state: Option<RepeatState>,
     recorder: Option<RouteRecorder>,
+    /// The local traversability seen while teaching, by route id (this session's routes).
+    teach_views: Vec<(String, TeachView)>,
+    /// The view of the route being repeated, if it was taught in this session.
+    repeat_view: Option<TeachView>,
     gnss: GnssTracker,
     follower: control::Follower,
     /// The same controller tuned for taught routes (shorter look-ahead, earlier turn in place).
@@ -104,6 +109,12 @@ pub struct Agent {
     last_plan_t_s: f64,
     last_cmd: Cmd,
     gnss_rejected: u32,
+    /// When the last RTK fixed fix came and how far (horizontally) the pose was from it, metres.
+    gnss_residual: Option<(f64, f64)>,
+    /// Sweeps not mapped because their pose was not trusted.
+    scans_not_mapped: u64,
+    /// The SLAM frame's tilt against the GNSS track.
+    tilt: crate::mission::gnss_tilt::TiltEstimator,
 }
 
 /// How the SLAM frame sits in the map frame.
@@ -132,6 +143,8 @@ impl Agent {
             repeat_paused: false,
             repeat_state: None,
             recorder: None,
+            teach_views: Vec::new(),
+            repeat_view: None,
             gnss: GnssTracker::new(cfg.gnss.clone()),
             follower: control::Follower::new(cfg.control.clone()),
             route_tracker: control::Follower::new(control::Config {
@@ -164,6 +177,9 @@ impl Agent {
             last_plan_t_s: f64::NEG_INFINITY,
             last_cmd: Cmd::default(),
             gnss_rejected: 0,
+            gnss_residual: None,
+            scans_not_mapped: 0,
+            tilt: crate::mission::gnss_tilt::TiltEstimator::new(cfg.gnss.tilt.clone()),
             cfg,
         })
     }
@@ -228,10 +244,11 @@ impl Agent {
         let est_p = est.iso.translation.vector;
         let ant = self.cfg.gnss_antenna_xyz_m;
         let meas = enu - est.iso.rotation * Vector3::new(ant[0], ant[1], ant[2]);
-        // Horizontal only: pulling the height fix by fix would lift and drop whole sweeps
-        // against each other (rings of false steps); SLAM's own height is consistent.
-        let mut d = meas - est_p;
-        d.z = 0.0;
+        // The height creeps (height_gain << fusion_gain): pulling it fix by fix would lift and
+        // drop whole sweeps against each other (rings of false steps), left alone it drifts by
+        // decimetres over a few hundred metres and re-observed ground no longer meets old cells.
+        let d = meas - est_p;
+        self.gnss_residual = Some((t_s, d.xy().norm()));
         if d.xy().norm() > cfg.fusion_gate_m {
             self.gnss_rejected += 1;
             return;
@@ -242,16 +259,31 @@ impl Agent {
             .map(|y| common::geom::wrap_angle(y - est.planar.yaw_rad))
             .filter(|dy| dy.abs() < 10f64.to_radians())
             .map_or(0.0, |dy| dy * cfg.heading_gain);
-        let k = cfg.fusion_gain;
-        // Rotate about the robot by dyaw, then move it by k * d.
+        let k = Vector3::new(cfg.fusion_gain, cfg.fusion_gain, cfg.height_gain);
+        let map_from_slam = anchor.map_from_slam;
+        self.tilt.push(
+            map_from_slam.inverse_transform_point(&est_p.into()).coords,
+            meas,
+        );
+        let tilt = self
+            .tilt
+            .step(&map_from_slam.rotation.to_rotation_matrix())
+            .unwrap_or_default();
+        // Rotate about the robot by the tilt and dyaw, then move it by k * d.
         let delta =
             Isometry3::from_parts(
-                Translation3::from(est_p + d * k),
-                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), dyaw),
+                Translation3::from(est_p + d.component_mul(&k)),
+                UnitQuaternion::from_scaled_axis(tilt)
+                    * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), dyaw),
             ) * Isometry3::from_parts(Translation3::from(-est_p), UnitQuaternion::identity());
         if let Some(a) = self.anchor.as_mut() {
             a.map_from_slam = delta * a.map_from_slam;
         }
+        self.mapper.follow_frame(
+            &delta,
+            self.cfg.gnss.map_follow_radius_m,
+            self.cfg.gnss.map_follow_age_s,
+        );
         if let Some(m) = self.map_from_odom.as_mut() {
             *m = delta * *m;
         }
@@ -338,6 +370,11 @@ impl Agent {
             .map(|a| a.map_from_slam)
             .unwrap_or_else(Isometry3::identity);
         let pose = PoseMap::from_iso(map_from_slam * out.pose_map_base);
+        let jump_m = self.pose_now().map_or(0.0, |p| {
+            (p.iso.translation.vector - pose.iso.translation.vector)
+                .xy()
+                .norm()
+        });
         self.at_scan = Some((pose, None));
         self.map_from_odom = out.pose_map_odom.map(|m| map_from_slam * m);
 
@@ -354,18 +391,31 @@ impl Agent {
             stamp_s: scan.stamp_s,
             points,
         });
-        match self.mapper.update_scan(
-            deskewed.as_ref().unwrap_or(scan),
-            &pose_map_lidar,
-            &robot,
-            scan.stamp_s,
-        ) {
-            Ok(u) => {
+        // A sweep placed with a pose SLAM has just thrown off (or GNSS is still pulling back)
+        // would paint the ground it saw, misplaced, as steps against what the map holds.
+        let mapped = if jump_m > self.cfg.gnss.pose_jump_max_m || !self.pose_trusted(scan.stamp_s) {
+            self.scans_not_mapped += 1;
+            tracing::debug!(
+                "sweep at {:.2} s not mapped: pose jumped {jump_m:.2} m or disagrees with RTK",
+                scan.stamp_s
+            );
+            None
+        } else {
+            Some(self.mapper.update_scan(
+                deskewed.as_ref().unwrap_or(scan),
+                &pose_map_lidar,
+                &robot,
+                scan.stamp_s,
+            ))
+        };
+        match mapped {
+            None => {}
+            Some(Ok(u)) => {
                 rep.classified_cells = u.classified_cells;
                 self.pending_tiles.extend(u.tiles);
                 self.path_dirty |= u.class_changes > 0;
             }
-            Err(e) => self.last_error = Some(format!("mapping: {e}")),
+            Some(Err(e)) => self.last_error = Some(format!("mapping: {e}")),
         }
 
         // Safety stop on the raw sweep, in base_link.
@@ -424,6 +474,16 @@ impl Agent {
         self.mapper.tiles()
     }
 
+    /// Sweeps left out of the map because their pose was not trusted (a SLAM glitch).
+    pub fn scans_not_mapped(&self) -> u64 {
+        self.scans_not_mapped
+    }
+
+    /// The safety check of the last sweep (diagnostics).
+    pub fn safety(&self) -> control::SafetyVerdict {
+        self.safety
+    }
+
     /// The mapper (evaluation, rendering).
     pub fn mapper(&self) -> &mapping::Mapper {
         &self.mapper
@@ -449,8 +509,39 @@ impl Agent {
         (window, view)
     }
 
+    /// Whether the pose agrees with the last RTK fixed fix (or there is no fresh one to ask).
+    fn pose_trusted(&self, t_s: f64) -> bool {
+        self.gnss_residual.is_none_or(|(t, r)| {
+            t_s - t > self.cfg.gnss.fix_timeout_s || r <= self.cfg.gnss.pose_trust_residual_m
+        })
+    }
+
+    /// The teach-time view of the cells a repeat's corridor check can reach along `points`.
+    fn capture_teach_view(&self, points: &[common::msg::RoutePoint]) -> TeachView {
+        let line: Vec<(f64, f64)> = points.iter().map(|p| (p.x_m, p.y_m)).collect();
+        let r_m = 0.5 * self.cfg.profile.width_m + self.cfg.repeat.corridor_margin_m;
+        let m = &self.mapper;
+        TeachView::capture(&line, r_m, &m.lattice(), |cx, cy| {
+            let (ground, (_, top)) = (m.height_m(cx, cy)?, m.height_range(cx, cy)?);
+            Some(TaughtCell {
+                obstacle: m.class(cx, cy).is_obstacle(),
+                ground_m: ground as f32,
+                top_m: top,
+            })
+        })
+    }
+
+    /// How high a cell's evidence stands, robust to a stray return or two: its highest point,
+    /// but no more than two standard deviations above its mean (a car or a trunk fills its
+    /// cells with returns; a single point 30 cm up in grass does not).
+    fn robust_top_m(&self, cx: i64, cy: i64) -> Option<f32> {
+        let s = self.mapper.height_stats(cx, cy);
+        (s.n > 0).then(|| s.max_m.min(s.mean_m + 2.0 * s.var_m2.sqrt()) as f32)
+    }
+
     /// The grid a taught route's corridor is checked on: only cells the mapper classified as
-    /// obstacles, grown by the robot's half width plus `corridor_margin_m`.
+    /// obstacles (and, with the teach-time view, only those standing higher than at teach
+    /// time), grown by the robot's half width plus `corridor_margin_m`.
     fn corridor_grid(&self, window: &GridWindow, view: &mapping::PlannerView) -> PlanGrid {
         let s = window.lattice.cell_size_f64();
         // The same cells as `plan_grid` (`PlanGrid::from_cells` puts the origin there too).
@@ -458,14 +549,21 @@ impl Agent {
         let mut grid = PlanGrid::new(window.width, window.height, s, origin);
         let r_m = 0.5 * self.cfg.profile.width_m + self.cfg.repeat.corridor_margin_m;
         let r = (r_m / s).floor() as i64;
+        let rise = self.cfg.repeat.new_obstacle_rise_m as f32;
         let disc: Vec<(i64, i64)> = (-r..=r)
             .flat_map(|dy| (-r..=r).map(move |dx| (dx, dy)))
             .filter(|(dx, dy)| ((dx * dx + dy * dy) as f64).sqrt() * s <= r_m)
             .collect();
         for gy in 0..i64::from(window.height) {
             for gx in 0..i64::from(window.width) {
-                let c = view.get(window.min_cx + gx, window.min_cy + gy);
-                if c.state == common::grid::CellState::Obstacle {
+                let (cx, cy) = (window.min_cx + gx, window.min_cy + gy);
+                let c = view.get(cx, cy);
+                let new = || {
+                    self.repeat_view
+                        .as_ref()
+                        .is_none_or(|v| v.is_new_obstacle(cx, cy, self.robust_top_m(cx, cy), rise))
+                };
+                if c.state == common::grid::CellState::Obstacle && new() {
                     for (dx, dy) in &disc {
                         if grid.contains(gx + dx, gy + dy) {
                             grid.set_blocked(gx + dx, gy + dy);
@@ -631,8 +729,20 @@ impl Agent {
                 let lla = self.pose_now().and_then(|p| self.lla_of(&p));
                 let name = rec.name().to_string();
                 let points = rec.finish(pose, lla, self.unix_ms(t_s));
+                let route_id = format!("{}-{}", self.session_id, self.unix_ms(t_s));
+                let view = self.capture_teach_view(&points);
+                tracing::info!(
+                    "teach: route {route_id}, {} waypoints, {} cells of teach-time traversability kept",
+                    points.len(),
+                    view.len()
+                );
+                // A session teaches a handful of routes; keep the last few views.
+                if self.teach_views.len() >= 8 {
+                    self.teach_views.remove(0);
+                }
+                self.teach_views.push((route_id.clone(), view));
                 self.recorded = Some(Route {
-                    route_id: format!("{}-{}", self.session_id, self.unix_ms(t_s)),
+                    route_id,
                     name,
                     robot: self.robot.clone(),
                     session_id: self.session_id.clone(),
@@ -655,6 +765,11 @@ impl Agent {
                 self.teleop = None;
                 self.mode = Mode::Repeat;
                 self.repeat_paused = false;
+                self.repeat_view = self
+                    .teach_views
+                    .iter()
+                    .find(|(id, _)| *id == route.route_id && route.session_id == self.session_id)
+                    .map(|(_, v)| v.clone());
                 self.repeat = Some((
                     RouteFollower::new(self.cfg.repeat.clone(), &ordered, &pose),
                     route.clone(),
@@ -762,6 +877,21 @@ impl Agent {
                             d.rejoin_m.1,
                             d.length_m
                         );
+                        // The obstacle cells that closed the corridor there, and why.
+                        let r = (0.5 * self.cfg.profile.width_m
+                            + self.cfg.repeat.corridor_margin_m)
+                            / self.mapper.lattice().cell_size_f64();
+                        let r = r.ceil() as i64;
+                        for dy in -r..=r {
+                            for dx in -r..=r {
+                                if self.mapper.class(cx + dx, cy + dy).is_obstacle() {
+                                    tracing::debug!(
+                                        "repeat: blocking {}",
+                                        self.mapper.describe(cx + dx, cy + dy)
+                                    );
+                                }
+                            }
+                        }
                     }
                 }
                 match state {
@@ -805,7 +935,8 @@ impl Agent {
         };
         let lla = self.lla_of(&pose);
         let ms = self.unix_ms(t_s);
-        if let Some(rec) = self.recorder.as_mut() {
+        let trusted = self.pose_trusted(t_s);
+        if let Some(rec) = self.recorder.as_mut().filter(|_| trusted) {
             rec.offer(pose.planar, lla, ms);
         }
         // A stale sweep cannot vouch for the space ahead: treat it as a stop.
@@ -896,8 +1027,12 @@ impl Agent {
             omega_rps: c.omega_rps,
         };
         if stop_ahead && cmd.v_mps > 0.0 {
-            // The safety stop overrides everything: stop, rotating in place is still allowed.
+            // The safety stop overrides everything: stop; rotating in place is still allowed...
             cmd.v_mps = 0.0;
+        }
+        if cmd.v_mps.abs() < 1e-3 && self.safety.turn_blocked {
+            // ...unless something stands where the body's corners would sweep.
+            cmd.omega_rps = 0.0;
         }
         cmd
     }

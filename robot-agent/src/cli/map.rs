@@ -285,7 +285,7 @@ fn probe(
     );
     for y in (cy - 3..=cy + 3).rev() {
         for x in cx - 3..=cx + 3 {
-            let st = mapper.debug_stats(x, y);
+            let st = mapper.height_stats(x, y);
             let t = truth.get(x, y).copied().unwrap_or_default();
             eprintln!(
                 "  ({x:4},{y:4}) {:<13} {:<13} n {:3} mean {:7.3} sd {:.3} max {:7.3} | truth {:?} reasons {} step {:.3} h {:.3}",

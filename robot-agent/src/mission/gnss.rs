@@ -21,10 +21,28 @@ pub struct GnssConfig {
     /// Share of the GNSS-minus-SLAM position difference corrected per RTK fixed fix (0 = GNSS
     /// only anchors the start; SLAM then drifts freely).
     pub fusion_gain: f64,
+    /// Share of the GNSS-minus-SLAM height difference corrected per RTK fixed fix. Far smaller
+    /// than `fusion_gain`: a height step between sweeps reads as a step in the terrain, so the
+    /// height only creeps towards GNSS to cancel SLAM's slow vertical drift.
+    pub height_gain: f64,
     /// Share of the dual-antenna heading difference corrected per fix.
     pub heading_gain: f64,
     /// A fix further than this from the SLAM pose is treated as an outlier, metres.
     pub fusion_gate_m: f64,
+    /// While the pose is farther than this from a fresh RTK fixed fix, it is not trusted: no
+    /// teach waypoint is taken from it and no sweep is mapped with it (SLAM thrown off for a
+    /// moment, e.g. by the jolt of a curb, and GNSS still pulling it back), metres.
+    pub pose_trust_residual_m: f64,
+    /// Nor is a sweep mapped whose SLAM pose lands farther than this from where odometry
+    /// carried the previous one (the glitch itself, before a fix can tell), metres.
+    pub pose_jump_max_m: f64,
+    /// Stored map heights within this distance of the robot follow each GNSS correction of the
+    /// pose's height and tilt (they were seen under the same SLAM drift), metres...
+    pub map_follow_radius_m: f64,
+    /// ...if they changed within this long, seconds.
+    pub map_follow_age_s: f64,
+    /// Tilt of the SLAM frame estimated from the GNSS track (`[gnss.tilt]`).
+    pub tilt: crate::mission::gnss_tilt::TiltConfig,
 }
 
 impl Default for GnssConfig {
@@ -35,8 +53,14 @@ impl Default for GnssConfig {
             min_satellites_anchor: 5,
             antenna_x_m: 0.0,
             fusion_gain: 0.1,
+            height_gain: 0.005,
             heading_gain: 0.02,
             fusion_gate_m: 3.0,
+            pose_trust_residual_m: 0.1,
+            pose_jump_max_m: 0.15,
+            map_follow_radius_m: 30.0,
+            map_follow_age_s: 20.0,
+            tilt: Default::default(),
         }
     }
 }

@@ -2,7 +2,9 @@
 //! and the Orpheus navigation-computer gateway's logic.
 
 pub mod gnss;
+pub mod gnss_tilt;
 pub mod navigate;
 pub mod orpheus;
 pub mod repeat;
 pub mod teach;
+pub mod teach_view;

@@ -64,6 +64,9 @@ pub struct RepeatConfig {
     pub blockage_still_m: f64,
     /// After holding this long in front of a blockage that keeps moving, detour anyway, seconds.
     pub blockage_wait_max_s: f64,
+    /// With the teach-time view of the route: an obstacle cell on the corridor blocks only when
+    /// something stands this much higher than what stood there at teach time, metres.
+    pub new_obstacle_rise_m: f64,
 }
 
 impl Default for RepeatConfig {
@@ -84,6 +87,7 @@ impl Default for RepeatConfig {
             blockage_confirm_s: 2.0,
             blockage_still_m: 0.6,
             blockage_wait_max_s: 20.0,
+            new_obstacle_rise_m: 0.15,
         }
     }
 }
@@ -217,6 +221,11 @@ impl RouteFollower {
     /// All waypoints (taught and spliced).
     pub fn waypoints(&self) -> &[Waypoint] {
         &self.wps
+    }
+
+    /// True while the robot follows a spliced-in detour (until it is back on the route).
+    pub fn on_detour(&self) -> bool {
+        self.on_detour
     }
 
     /// (next waypoint index, waypoint count, distance left along the route in metres).

@@ -432,8 +432,8 @@ pub fn score(
                         } else {
                             ((cx, cy), (a, b))
                         };
-                        let low_seen = mapper.debug_range(lo_x, lo_y).is_some_and(|r| r.0 < mid);
-                        let high_seen = mapper.debug_range(hi_x, hi_y).is_some_and(|r| r.1 > mid);
+                        let low_seen = mapper.height_range(lo_x, lo_y).is_some_and(|r| r.0 < mid);
+                        let high_seen = mapper.height_range(hi_x, hi_y).is_some_and(|r| r.1 > mid);
                         low_seen && high_seen
                     });
                 if !both_sides {

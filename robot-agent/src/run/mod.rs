@@ -331,6 +331,19 @@ pub fn run_goal_rig(
         if !ev.control {
             continue;
         }
+        if std::env::var_os("TERRANAV_TRACE").is_some() {
+            let p = rig.sim.truth_pose().translation.vector;
+            let e = rig.agent.pose_now().map(|p| p.iso.translation.vector);
+            eprintln!(
+                "trace t {:.1} truth {:.2} {:.2} {:.3} est {:?} state {:?}",
+                rig.t_s(),
+                p.x,
+                p.y,
+                p.z,
+                e.map(|e| (e.x, e.y, e.z)),
+                rig.agent.navigator().state()
+            );
+        }
         match rig.agent.navigator().state() {
             MissionState::Reached => break "reached",
             MissionState::NoPath if rig.agent.navigator().goal().is_none() => break "no_path",
@@ -387,8 +400,11 @@ pub struct TeachRepeatReport {
     pub tracking_max_m: f64,
     /// Detours spliced in.
     pub detours: u32,
+    /// Of those, detours around a person standing on the route (a walker within 2 m of the
+    /// blockage when the detour was planned); their stretches are not free.
+    pub walker_detours: u32,
     /// Per detour: straight-line distance from the rejoin point to the nearest added obstacle's
-    /// footprint, metres.
+    /// footprint (for a detour around a person, to where the person stood), metres.
     pub rejoin_distance_m: Vec<f64>,
     /// Where detours began that no added obstacle explains (blocked point more than 3 m from
     /// every added obstacle), map frame, metres.
@@ -403,6 +419,8 @@ pub struct TeachRepeatReport {
     pub route_length_m: f64,
     /// Simulated time of the return, seconds.
     pub time_s: f64,
+    /// Sweeps (teach and return) left out of the map because SLAM's pose was thrown off.
+    pub scans_not_mapped: u64,
 }
 
 /// Teach along the scenario's teach path by teleop, add obstacles, return home along the route.
@@ -448,6 +466,18 @@ pub fn run_teach_repeat(
                 },
             );
             let p = rig.truth();
+            if std::env::var_os("TERRANAV_TRACE").is_some() {
+                let est = rig.agent.pose_now().map(|e| e.planar).unwrap_or_default();
+                eprintln!(
+                    "trace teach t {:.1} truth {:.2} {:.2} est {:.2} {:.2} err {:.3}",
+                    rig.t_s(),
+                    p.x_m,
+                    p.y_m,
+                    est.x_m,
+                    est.y_m,
+                    (est.x_m - p.x_m).hypot(est.y_m - p.y_m)
+                );
+            }
             if taught_truth
                 .last()
                 .is_none_or(|q| (q.0 - p.x_m).hypot(q.1 - p.y_m) >= 0.05)
@@ -498,7 +528,12 @@ pub fn run_teach_repeat(
         )
         .map_err(anyhow::Error::msg)?;
     let t_start = rig.t_s();
-    let mut lateral: Vec<(f64, (f64, f64))> = Vec::new();
+    // Per control cycle: lateral distance to the taught path, position, and whether the robot
+    // was on a detour around a person (not a free stretch, whatever the map says).
+    let mut lateral: Vec<(f64, (f64, f64), bool)> = Vec::new();
+    let mut seen_detours = (0usize, 0u32);
+    // (detour index, where the walker stood when it was planned).
+    let mut walker_detours: Vec<(usize, (f64, f64))> = Vec::new();
     let outcome = loop {
         let ev = rig.step();
         if ev.collisions > 0 && opts.stop_on_collision {
@@ -506,9 +541,32 @@ pub fn run_teach_repeat(
         }
         if ev.control {
             let p = rig.truth();
+            // A detour (or re-plan) that begins with a walker within 2 m of the blockage is a
+            // detour around that person.
+            if let Some(f) = rig.agent.route_follower() {
+                if let Some(d) = f.detours.last() {
+                    let now = (f.detours.len(), d.replans);
+                    if now != seen_detours {
+                        seen_detours = now;
+                        let by_walker = rig.sim.walkers().into_iter().find(|w| {
+                            (w.x_m - d.blocked_m.0).hypot(w.y_m - d.blocked_m.1) < 2.0 + w.radius_m
+                        });
+                        let k = f.detours.len() - 1;
+                        if let Some(w) = by_walker {
+                            walker_detours.retain(|(j, _)| *j != k);
+                            walker_detours.push((k, (w.x_m, w.y_m)));
+                        }
+                    }
+                }
+            }
+            let on_walker_detour = rig.agent.route_follower().is_some_and(|f| {
+                let k = f.detours.len().saturating_sub(1);
+                f.on_detour() && walker_detours.iter().any(|(j, _)| *j == k)
+            });
             lateral.push((
                 distance_to_polyline(&taught_truth, (p.x_m, p.y_m)),
                 (p.x_m, p.y_m),
+                on_walker_detour,
             ));
             if std::env::var_os("TERRANAV_TRACE").is_some() {
                 let est = rig.agent.pose_now().map(|p| p.planar).unwrap_or_default();
@@ -518,6 +576,21 @@ pub fn run_teach_repeat(
                     .agent
                     .pose_now()
                     .map_or(f64::NAN, |p| p.iso.translation.vector.z);
+                let sv = rig.agent.safety();
+                let walker = rig
+                    .sim
+                    .walkers()
+                    .iter()
+                    .map(|w| {
+                        let (c, s) = (p.yaw_rad.cos(), p.yaw_rad.sin());
+                        let (dx, dy) = (w.x_m - p.x_m, w.y_m - p.y_m);
+                        (c * dx + s * dy, -s * dx + c * dy)
+                    })
+                    .min_by(|a, b| a.0.hypot(a.1).total_cmp(&b.0.hypot(b.1)));
+                eprintln!(
+                    "trace   safety stop {} turn_blocked {} clearance {:.2} nearest walker (body frame) {:?}",
+                    sv.stop, sv.turn_blocked, sv.clearance_m, walker
+                );
                 eprintln!(
                     "trace t {:.1} truth {:.2} {:.2} {:.3} est {:.2} {:.2} {:.3} lat {:.3} cmd {:.2} {:.2} hold {} err {:?}",
                     rig.t_s(),
@@ -560,12 +633,13 @@ pub fn run_teach_repeat(
         .route_follower()
         .map(|f| f.detours.clone())
         .unwrap_or_default();
-    // Free stretches: away from every obstacle that was added (their footprint plus 3 m).
+    // Free stretches: away from every obstacle that was added (their footprint plus 3 m), and
+    // not on a detour around a person.
     let near_obstacle = |p: (f64, f64)| obstacles.is_some_and(|o| o.distance_to(p) < 3.0);
     let free: Vec<f64> = lateral
         .iter()
-        .filter(|(_, p)| !near_obstacle(*p))
-        .map(|(d, _)| *d)
+        .filter(|(_, p, walker)| !near_obstacle(*p) && !walker)
+        .map(|(d, _, _)| *d)
         .collect();
     let rms = if free.is_empty() {
         0.0
@@ -573,19 +647,28 @@ pub fn run_teach_repeat(
         (free.iter().map(|d| d * d).sum::<f64>() / free.len() as f64).sqrt()
     };
     let max = free.iter().copied().fold(0.0, f64::max);
+    // Past the obstacle: the added one, or where the person stood.
+    let walker_at = |k: usize| walker_detours.iter().find(|(j, _)| *j == k).map(|w| w.1);
     let rejoin_distance_m = detours
         .iter()
-        .map(|d| obstacles.map_or(0.0, |o| o.distance_to(d.rejoin_m)))
+        .enumerate()
+        .map(|(k, d)| match walker_at(k) {
+            Some(w) => (d.rejoin_m.0 - w.0).hypot(d.rejoin_m.1 - w.1),
+            None => obstacles.map_or(0.0, |o| o.distance_to(d.rejoin_m)),
+        })
         .collect();
-    // Detours whose blockage is nowhere near an added obstacle: the mapper saw something on a
-    // free stretch (or a walker stood there long enough).
+    // Detours whose blockage is nowhere near an added obstacle or a walker: the mapper saw
+    // something on a free stretch.
     let unexplained_detours_m = detours
         .iter()
-        .filter(|d| obstacles.is_none_or(|o| o.distance_to(d.blocked_m) > 3.0))
-        .map(|d| [d.blocked_m.0, d.blocked_m.1])
+        .enumerate()
+        .filter(|(k, d)| {
+            obstacles.is_none_or(|o| o.distance_to(d.blocked_m) > 3.0) && walker_at(*k).is_none()
+        })
+        .map(|(_, d)| [d.blocked_m.0, d.blocked_m.1])
         .collect();
     if let Some(png) = &opts.map_png {
-        let path: Vec<(f64, f64)> = lateral.iter().map(|(_, p)| *p).collect();
+        let path: Vec<(f64, f64)> = lateral.iter().map(|(_, p, _)| *p).collect();
         rig.draw_map(&path, png)?;
     }
     let truth = rig.truth();
@@ -598,6 +681,7 @@ pub fn run_teach_repeat(
         tracking_rms_m: rms,
         tracking_max_m: max,
         detours: detours.len() as u32,
+        walker_detours: walker_detours.len() as u32,
         rejoin_distance_m,
         unexplained_detours_m,
         collisions: rig.collisions - collisions_before,
@@ -605,6 +689,7 @@ pub fn run_teach_repeat(
         waypoints,
         route_length_m,
         time_s: rig.t_s() - t_start,
+        scans_not_mapped: rig.agent.scans_not_mapped(),
     })
 }
 
