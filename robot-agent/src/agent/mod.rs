@@ -393,10 +393,18 @@ impl Agent {
         });
         // A sweep placed with a pose SLAM has just thrown off (or GNSS is still pulling back)
         // would paint the ground it saw, misplaced, as steps against what the map holds.
-        let mapped = if jump_m > self.cfg.gnss.pose_jump_max_m || !self.pose_trusted(scan.stamp_s) {
+        let pitch_off = self.gnss.pitch_rad(scan.stamp_s).is_some_and(|gp| {
+            let (_, pitch, _) = pose.iso.rotation.euler_angles();
+            common::geom::wrap_angle(pitch - gp).abs()
+                > self.cfg.gnss.pose_trust_pitch_deg.to_radians()
+        });
+        let mapped = if jump_m > self.cfg.gnss.pose_jump_max_m
+            || pitch_off
+            || !self.pose_trusted(scan.stamp_s)
+        {
             self.scans_not_mapped += 1;
             tracing::debug!(
-                "sweep at {:.2} s not mapped: pose jumped {jump_m:.2} m or disagrees with RTK",
+                "sweep at {:.2} s not mapped: pose jumped {jump_m:.2} m, or pitch or position disagrees with GNSS",
                 scan.stamp_s
             );
             None
@@ -507,6 +515,32 @@ impl Agent {
             .mapper
             .view(window.min_cx, window.min_cy, window.width, window.height);
         (window, view)
+    }
+
+    /// Logs (debug) the obstacle cells within the corridor's reach of a blocked route point,
+    /// with why each is what it is.
+    fn log_blocking_cells(&self, at_m: (f64, f64)) {
+        let lattice = self.mapper.lattice();
+        let (cx, cy) = lattice.cell_of(at_m.0, at_m.1);
+        let r = (0.5 * self.cfg.profile.width_m + self.cfg.repeat.corridor_margin_m)
+            / lattice.cell_size_f64();
+        let r = r.ceil() as i64;
+        for dy in -r..=r {
+            for dx in -r..=r {
+                if self.mapper.class(cx + dx, cy + dy).is_obstacle() {
+                    let taught = self
+                        .repeat_view
+                        .as_ref()
+                        .and_then(|v| v.get(cx + dx, cy + dy));
+                    tracing::debug!(
+                        "repeat: blocking {}; at teach time {:?}; top now {:?}",
+                        self.mapper.describe(cx + dx, cy + dy),
+                        taught,
+                        self.robust_top_m(cx + dx, cy + dy)
+                    );
+                }
+            }
+        }
     }
 
     /// Whether the pose agrees with the last RTK fixed fix (or there is no fresh one to ask).
@@ -853,6 +887,8 @@ impl Agent {
             let (window, view) = self.planning_window(&pose.planar);
             let grid = self.plan_grid_in(&pose.planar, &window, &view);
             let corridor = self.corridor_grid(&window, &view);
+            // Blocked points whose cells are worth a log line, once the follower is let go.
+            let mut explain: Vec<(f64, f64)> = Vec::new();
             if let Some((f, _)) = self.repeat.as_mut() {
                 let before = f.detours.last().map(|d| (f.detours.len(), d.replans));
                 let state = f.update_with_corridor(&pose.planar, &grid, &corridor, t_s);
@@ -877,21 +913,7 @@ impl Agent {
                             d.rejoin_m.1,
                             d.length_m
                         );
-                        // The obstacle cells that closed the corridor there, and why.
-                        let r = (0.5 * self.cfg.profile.width_m
-                            + self.cfg.repeat.corridor_margin_m)
-                            / self.mapper.lattice().cell_size_f64();
-                        let r = r.ceil() as i64;
-                        for dy in -r..=r {
-                            for dx in -r..=r {
-                                if self.mapper.class(cx + dx, cy + dy).is_obstacle() {
-                                    tracing::debug!(
-                                        "repeat: blocking {}",
-                                        self.mapper.describe(cx + dx, cy + dy)
-                                    );
-                                }
-                            }
-                        }
+                        explain.push(d.blocked_m);
                     }
                 }
                 match state {
@@ -909,6 +931,7 @@ impl Agent {
                         let e = format!("repeat: holding: {why}");
                         if self.last_error.as_deref() != Some(e.as_str()) {
                             tracing::warn!("{e}");
+                            explain.extend(f.blockage_m());
                         }
                         self.last_error = Some(e);
                     }
@@ -917,6 +940,9 @@ impl Agent {
                         self.nav.stop("route finished");
                     }
                 }
+            }
+            for at in explain {
+                self.log_blocking_cells(at);
             }
             return true;
         }

@@ -36,6 +36,9 @@ pub struct GnssConfig {
     /// Nor is a sweep mapped whose SLAM pose lands farther than this from where odometry
     /// carried the previous one (the glitch itself, before a fix can tell), metres.
     pub pose_jump_max_m: f64,
+    /// Nor one whose pitch differs from the fresh dual-antenna pitch by more than this (1 deg
+    /// of pitch lifts ground 7 m ahead by 12 cm: a step against what the map holds), degrees.
+    pub pose_trust_pitch_deg: f64,
     /// Stored map heights within this distance of the robot follow each GNSS correction of the
     /// pose's height and tilt (they were seen under the same SLAM drift), metres...
     pub map_follow_radius_m: f64,
@@ -58,6 +61,7 @@ impl Default for GnssConfig {
             fusion_gate_m: 3.0,
             pose_trust_residual_m: 0.1,
             pose_jump_max_m: 0.15,
+            pose_trust_pitch_deg: 1.0,
             map_follow_radius_m: 30.0,
             map_follow_age_s: 20.0,
             tilt: Default::default(),

@@ -223,6 +223,11 @@ impl RouteFollower {
         &self.wps
     }
 
+    /// The first blocked point of the route ahead being watched, if any (diagnostics).
+    pub fn blockage_m(&self) -> Option<(f64, f64)> {
+        self.pending.as_ref().map(|p| p.at_m)
+    }
+
     /// True while the robot follows a spliced-in detour (until it is back on the route).
     pub fn on_detour(&self) -> bool {
         self.on_detour
