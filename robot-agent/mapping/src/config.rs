@@ -47,7 +47,8 @@ pub struct Config {
     pub processing_distance_m: f64,
     /// Beyond `processing_distance_m` and up to this distance, a cell judged traversable from
     /// within it on its own close evidence becomes an obstacle when the profile step test fires
-    /// on newer, distant evidence around it (never the reverse); 0 turns this off, metres.
+    /// on newer, distant evidence around it (never the reverse); at or below
+    /// `processing_distance_m` (0, say) there is no such band and the rule is off, metres.
     pub far_step_distance_m: f64,
     /// Minimum points in the 3x3 neighbourhood of a cell before it is classified
     /// (`points_around_threshold`); fewer leaves it undecided.
@@ -219,9 +220,8 @@ impl Config {
             "processing_distance_m must be positive",
         )?;
         bad(
-            self.far_step_distance_m == 0.0
-                || self.far_step_distance_m >= self.processing_distance_m,
-            "far_step_distance_m must be 0 (off) or at least processing_distance_m",
+            self.far_step_distance_m >= 0.0,
+            "far_step_distance_m must be 0 or more (up to processing_distance_m: off)",
         )?;
         bad(
             self.max_variance_m2 > 0.0,
