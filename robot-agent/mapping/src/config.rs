@@ -321,6 +321,24 @@ mod tests {
     }
 
     #[test]
+    fn every_shipped_mapper_file_loads_and_validates() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+        let mut n = 0;
+        for e in std::fs::read_dir(&dir).unwrap() {
+            let path = e.unwrap().path();
+            let name = path.file_name().unwrap().to_string_lossy().to_string();
+            if !(name.starts_with("mapper") && name.ends_with(".toml")) {
+                continue;
+            }
+            let c: Config = toml::from_str(&std::fs::read_to_string(&path).unwrap())
+                .unwrap_or_else(|e| panic!("{name}: {e}"));
+            c.validate().unwrap_or_else(|e| panic!("{name}: {e}"));
+            n += 1;
+        }
+        assert!(n >= 2, "found {n} mapper files in {}", dir.display());
+    }
+
+    #[test]
     fn toml_fills_and_unknown_keys_fail() {
         let c: Config = toml::from_str("h_r_m = 1.5\n").unwrap();
         assert_eq!(c.h_r_m, 1.5);
