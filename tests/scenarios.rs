@@ -187,3 +187,46 @@ fn bad_goal_arguments_are_refused_clearly() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--goal"));
 }
+
+/// Issue 9's acceptance on the 268 m `teach-route` (walkers on the route, 5 cm curbs, a plateau
+/// with ramps, buildings, parked cars): teach by teleop, return home along the route.
+fn teach_route(extra: &[&str]) -> Value {
+    let mut args = vec!["--teach-repeat", "--timeout", "1500"];
+    args.extend_from_slice(extra);
+    let v = mission("teach-route", &args);
+    eprintln!("teach-route {extra:?}: {v}");
+    assert_eq!(v["outcome"], "reached", "{v}");
+    assert_eq!(v["collisions"], 0, "{v}");
+    assert!(f(&v, "final_error_m") <= 0.3, "{v}");
+    assert!(
+        f(&v, "tracking_rms_m") <= 0.05 && f(&v, "tracking_max_m") <= 0.15,
+        "tracking on free stretches: {v}"
+    );
+    assert_eq!(
+        v["unexplained_detours_m"].as_array().map(Vec::len),
+        Some(0),
+        "the robot left the route where it was free: {v}"
+    );
+    v
+}
+
+#[test]
+fn teach_route_free_return_follows_the_taught_path() {
+    teach_route(&[]);
+}
+
+#[test]
+fn teach_route_return_detours_round_a_car_and_a_fallen_tree() {
+    let v = teach_route(&["--add-obstacles", "config/obstacles/teach-route.toml"]);
+    let rejoins: Vec<f64> = v["rejoin_distance_m"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|d| d.as_f64().unwrap())
+        .collect();
+    assert!(f(&v, "detours") >= 2.0, "{v}");
+    assert!(
+        rejoins.iter().all(|d| *d <= 2.0),
+        "each detour rejoins within 2 m past its obstacle: {v}"
+    );
+}

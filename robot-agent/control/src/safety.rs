@@ -51,6 +51,9 @@ pub struct SafetyVerdict {
     pub turn_blocked: bool,
     /// Points inside that circle (outside the body).
     pub points_in_swept: usize,
+    /// The stop-zone point nearest the body (`base_link` x, y), for telling the planner where
+    /// a stop that lasts stands.
+    pub zone_nearest_m: Option<(f64, f64)>,
 }
 
 impl Default for SafetyVerdict {
@@ -61,6 +64,7 @@ impl Default for SafetyVerdict {
             clearance_m: f64::INFINITY,
             turn_blocked: false,
             points_in_swept: 0,
+            zone_nearest_m: None,
         }
     }
 }
@@ -73,6 +77,7 @@ pub fn check(
     let (hl, hw) = (cfg.body_length_m / 2.0, cfg.body_width_m / 2.0);
     let swept_r2 = (hl.hypot(hw) + cfg.stop_side_m).powi(2);
     let mut v = SafetyVerdict::default();
+    let mut zone_gap = f64::INFINITY;
     for (x, y, z) in points_base {
         if !(x.is_finite() && y.is_finite() && z.is_finite())
             || z < cfg.min_height_m
@@ -86,11 +91,16 @@ pub fn check(
             // Inside the body outline: the robot's own parts (sensor mast, bumpers).
             continue;
         }
-        v.clearance_m = v.clearance_m.min(ex.hypot(ey));
+        let gap = ex.hypot(ey);
+        v.clearance_m = v.clearance_m.min(gap);
         let ahead = x > hl && x <= hl + cfg.stop_ahead_m && y.abs() <= hw + cfg.stop_side_m;
         let beside = x.abs() <= hl && ey > 0.0 && ey <= cfg.stop_side_m;
         if ahead || beside {
             v.points_in_zone += 1;
+            if gap < zone_gap {
+                zone_gap = gap;
+                v.zone_nearest_m = Some((x, y));
+            }
         }
         if x * x + y * y <= swept_r2 {
             v.points_in_swept += 1;
@@ -113,6 +123,7 @@ mod tests {
             .collect();
         let v = check(&c, wall.clone());
         assert!(v.stop && (v.clearance_m - 0.15).abs() < 1e-9);
+        assert_eq!(v.zone_nearest_m.map(|p| p.0), Some(0.65));
         let far: Vec<_> = wall.iter().map(|p| (1.5, p.1, p.2)).collect();
         assert!(!check(&c, far).stop);
         let ground: Vec<_> = wall.iter().map(|p| (p.0, p.1, 0.05)).collect();

@@ -1792,4 +1792,10 @@ impl Mapper {
             .map(|d| d.evidence().stats())
             .unwrap_or_default()
     }
+
+    /// Height statistics of a cell's newest evidence epoch alone (`evidence_epoch_s` long):
+    /// what the sensor saw there most recently.
+    pub fn newest_height_stats(&self, cx: i64, cy: i64) -> CellStats {
+        self.data(cx, cy).map(|d| d.cur.stats()).unwrap_or_default()
+    }
 }

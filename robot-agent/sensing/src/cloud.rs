@@ -73,6 +73,16 @@ pub struct OdomSample {
     pub omega_rps: f64,
 }
 
+/// One accelerometer reading of an IMU mounted at `base_link`.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct ImuSample {
+    /// Time, seconds (session clock): the end of the interval the reading averages.
+    pub t_s: f64,
+    /// Specific force (acceleration less gravity, so +9.81 up at rest) in `base_link`, averaged
+    /// over the sample interval as an IMU's anti-aliasing filter does, m/s^2.
+    pub accel_mps2: [f64; 3],
+}
+
 /// One NMEA-0183 sentence as received from a GNSS receiver, with its arrival time.
 #[derive(Clone, Debug, PartialEq, Default)]
 pub struct GnssSentence {

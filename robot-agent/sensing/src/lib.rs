@@ -14,4 +14,4 @@ pub mod ply;
 pub mod sequence;
 pub mod velodyne;
 
-pub use cloud::{GnssSentence, OdomSample, Point, Scan};
+pub use cloud::{GnssSentence, ImuSample, OdomSample, Point, Scan};

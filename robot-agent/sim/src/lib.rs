@@ -29,6 +29,6 @@ pub use labels::{LabelParams, TruthCell, TruthGrid};
 pub use plant::{Collision, CollisionKind};
 pub use robot::RobotProfile;
 pub use scenario::{Scenario, ScenarioError};
-pub use sensors::{DepthConfig, GnssConfig, GnssFix, LidarConfig, OdomConfig};
+pub use sensors::{DepthConfig, GnssConfig, GnssFix, ImuConfig, LidarConfig, OdomConfig};
 pub use simulation::{SimConfig, Simulation, StepOutput};
 pub use world::{Hit, HitKind, Obstacle, WalkerState, World};

@@ -4,14 +4,15 @@ use crate::plant::{Collision, Plant};
 use crate::robot::RobotProfile;
 use crate::scenario::Scenario;
 use crate::sensors::{
-    depth_frame, DepthConfig, Gnss, GnssConfig, GnssFix, Lidar, LidarConfig, OdomConfig, Odometry,
+    depth_frame, DepthConfig, Gnss, GnssConfig, GnssFix, Imu, ImuConfig, Lidar, LidarConfig,
+    OdomConfig, Odometry,
 };
 use crate::world::{Obstacle, Solid, WalkerState, World};
 use common::geom::Pose2;
 use nalgebra::Isometry3;
 use rand::rngs::SmallRng;
 use rand::SeedableRng;
-use sensing::{GnssSentence, OdomSample, Scan};
+use sensing::{GnssSentence, ImuSample, OdomSample, Scan};
 use serde::Deserialize;
 
 /// Longest internal sub-step, seconds: bounds walker motion within one LiDAR chunk and keeps the
@@ -40,6 +41,8 @@ pub struct SimConfig {
     pub odom: OdomConfig,
     /// GNSS receiver.
     pub gnss: GnssConfig,
+    /// IMU accelerometer.
+    pub imu: ImuConfig,
     /// Walkers wait while walking on for `walker_lookahead_s` would bring them within this gap
     /// of the robot's footprint (people step around or wait for a robot; they do not walk into
     /// it). 0 turns yielding off: walkers then follow their scripts blindly, metres.
@@ -58,6 +61,7 @@ impl Default for SimConfig {
             depth: DepthConfig::default(),
             odom: OdomConfig::default(),
             gnss: GnssConfig::default(),
+            imu: ImuConfig::default(),
             walker_yield_gap_m: 0.4,
             walker_lookahead_s: 1.0,
         }
@@ -75,6 +79,8 @@ pub struct StepOutput {
     pub odom: Option<OdomSample>,
     /// GNSS sentences (GGA then `$PTNL,AVR` per epoch), without line endings.
     pub gnss: Vec<GnssSentence>,
+    /// IMU samples that fell due in this step, oldest first.
+    pub imu: Vec<ImuSample>,
     /// Collisions that began in this step.
     pub collisions: Vec<Collision>,
 }
@@ -87,12 +93,14 @@ pub struct Simulation {
     lidar: Lidar,
     odom: Odometry,
     gnss: Gnss,
+    imu: Imu,
     next_depth_t_s: f64,
     t_s: f64,
     rng_lidar: SmallRng,
     rng_depth: SmallRng,
     rng_odom: SmallRng,
     rng_gnss: SmallRng,
+    rng_imu: SmallRng,
     scenario_name: String,
     datum: common::msg::Datum,
     dropped_scans: u64,
@@ -124,17 +132,21 @@ impl Simulation {
         // One independent stream per sensor: switching one sensor off leaves the others' noise as it was.
         let rng =
             |k: u64| SmallRng::seed_from_u64(cfg.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ k);
+        let mut rng_imu = rng(5);
+        let imu = Imu::new(&cfg.imu, &mut rng_imu);
         Self {
             plant,
             lidar,
             odom,
             gnss,
+            imu,
             next_depth_t_s: 0.0,
             t_s: 0.0,
             rng_lidar: rng(1),
             rng_depth: rng(2),
             rng_odom: rng(3),
             rng_gnss: rng(4),
+            rng_imu,
             scenario_name: scenario.name.clone(),
             datum,
             dropped_scans: 0,
@@ -232,6 +244,10 @@ impl Simulation {
                 ) {
                     out.odom = Some(o);
                 }
+            }
+            if self.cfg.imu.enabled {
+                out.imu
+                    .extend(self.imu.step(t1, h, &base0, &base1, &mut self.rng_imu));
             }
             if self.cfg.gnss.enabled {
                 out.gnss
@@ -436,6 +452,40 @@ yaw_deg = 0.0
             seed,
             ..Default::default()
         }
+    }
+
+    #[test]
+    fn the_imu_reads_gravity_in_the_body_frame_and_the_turns_centripetal_pull() {
+        let sc = scenario("");
+        let mut sim = Simulation::new(&sc, cfg(3));
+        let mean_over = |sim: &mut Simulation, s: f64, v: f64, w: f64| {
+            let mut sum = Vector3::zeros();
+            let mut n = 0.0;
+            let mut up_body = Vector3::zeros();
+            for _ in 0..(s / 0.02) as usize {
+                let out = sim.step(0.02, v, w);
+                for i in &out.imu {
+                    sum += Vector3::from(i.accel_mps2);
+                    n += 1.0;
+                    up_body += sim.truth_pose().rotation.inverse() * Vector3::z();
+                }
+            }
+            (sum / n, up_body / n, n)
+        };
+        // Standing on the undulating ground: gravity along the true body up axis, within the bias.
+        let (f, up, n) = mean_over(&mut sim, 1.0, 0.0, 0.0);
+        assert!((49.0..=51.0).contains(&n), "{n} samples in 1 s at 50 Hz");
+        assert!(
+            (f - up * 9.806_65).norm() < 0.05,
+            "{f:?} vs {:?}",
+            up * 9.806_65
+        );
+        // Driving a steady circle (0.5 m/s, 0.5 rad/s): 0.25 m/s^2 towards the centre (body +y).
+        mean_over(&mut sim, 2.0, 0.5, 0.5);
+        let (f, up, _) = mean_over(&mut sim, 2.0, 0.5, 0.5);
+        let lateral = f - up * 9.806_65;
+        assert!((lateral.y - 0.25).abs() < 0.05, "{lateral:?}");
+        assert!(lateral.x.abs() < 0.05, "{lateral:?}");
     }
 
     #[test]

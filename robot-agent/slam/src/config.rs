@@ -17,6 +17,8 @@ pub struct Config {
     pub map: MapConfig,
     /// Dynamic-point model.
     pub dynamic: DynamicConfig,
+    /// The frame's roll and pitch from the IMU's accelerometer.
+    pub gravity: crate::gravity::GravityConfig,
 }
 
 /// Where the LiDAR sits on the robot.

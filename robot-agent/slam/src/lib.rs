@@ -8,12 +8,14 @@
 //! - [`icp`]: point-to-plane Gauss-Newton on SE(3) with Cauchy weights and checkers.
 //! - [`map`]: the point map, its spatial index and the dynamic-point ray model.
 //! - [`pipeline`]: the per-scan step ([`Slam::process`]).
+//! - [`gravity`]: the frame's roll and pitch from an accelerometer (gravity against the estimate).
 //! - [`eval`]: ATE / RPE / drift against ground truth, map-point provenance.
 #![deny(missing_docs)]
 
 pub mod config;
 pub mod eval;
 pub mod filters;
+pub mod gravity;
 pub mod icp;
 pub mod index;
 pub mod map;

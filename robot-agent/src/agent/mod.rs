@@ -25,7 +25,7 @@ use common::msg::{
 pub use config::AgentConfig;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use planning::{CostRule, GridWindow, PlanGrid};
-use sensing::{GnssSentence, OdomSample, Scan};
+use sensing::{GnssSentence, ImuSample, OdomSample, Scan};
 
 /// A velocity command for the base.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -113,9 +113,25 @@ pub struct Agent {
     gnss_residual: Option<(f64, f64)>,
     /// Sweeps not mapped because their pose was not trusted.
     scans_not_mapped: u64,
+    /// Since when (sweep time) the safety stop has held without a break, and where (map frame)
+    /// the stop-zone point nearest the body stood in the last sweep.
+    lasting_stop: Option<(f64, (f64, f64))>,
+    /// Whether the last sweep's pose passed the trust gates (the pose until the next sweep is
+    /// built on it, so no teach waypoint is taken from it either).
+    scan_pose_trusted: bool,
     /// The SLAM frame's tilt against the GNSS track.
     tilt: crate::mission::gnss_tilt::TiltEstimator,
+    /// The frame's tilt against the accelerometer's gravity.
+    gravity: slam::gravity::GravityTilt,
+    /// When the accelerometer last corrected the tilt (it then supersedes the GNSS track fit).
+    gravity_t_s: f64,
+    /// IMU samples refused (non-finite, out of order).
+    imu_rejected: u64,
 }
+
+/// The accelerometer's tilt counts as live this long after its last correction (the GNSS track
+/// fit then leaves the tilt alone), seconds.
+const GRAVITY_FRESH_S: f64 = 5.0;
 
 /// How the SLAM frame sits in the map frame.
 #[derive(Clone, Debug)]
@@ -179,7 +195,12 @@ impl Agent {
             gnss_rejected: 0,
             gnss_residual: None,
             scans_not_mapped: 0,
+            scan_pose_trusted: true,
+            lasting_stop: None,
             tilt: crate::mission::gnss_tilt::TiltEstimator::new(cfg.gnss.tilt.clone()),
+            gravity: slam::gravity::GravityTilt::new(cfg.slam.gravity.clone()),
+            gravity_t_s: f64::NEG_INFINITY,
+            imu_rejected: 0,
             cfg,
         })
     }
@@ -198,6 +219,36 @@ impl Agent {
     pub fn on_odom(&mut self, o: OdomSample) {
         self.slam.push_odometry(o);
         self.last_odom = Some(o);
+    }
+
+    /// Feeds one IMU accelerometer sample; bad ones are counted, never fatal. Each is kept with
+    /// the attitude the agent estimates at that moment (identity before the first scan: the
+    /// body frame, which the anchor then turns into the map frame).
+    pub fn on_imu(&mut self, s: &ImuSample) {
+        if !self.cfg.slam.gravity.enabled {
+            return;
+        }
+        let att = self
+            .pose_now()
+            .map_or_else(UnitQuaternion::identity, |p| p.iso.rotation);
+        let (v, w) = self
+            .last_odom
+            .map_or((0.0, 0.0), |o| (o.v_mps, o.omega_rps));
+        if !self
+            .gravity
+            .push(s.t_s, &Vector3::from(s.accel_mps2), &att, v, w)
+        {
+            self.imu_rejected += 1;
+            self.last_error = Some(format!(
+                "IMU: sample at {:.3} s refused (non-finite or out of order)",
+                s.t_s
+            ));
+        }
+    }
+
+    /// IMU samples refused so far.
+    pub fn imu_rejected(&self) -> u64 {
+        self.imu_rejected
     }
 
     /// Feeds one NMEA sentence; bad ones are counted (and shown), never fatal.
@@ -269,6 +320,12 @@ impl Agent {
             .tilt
             .step(&map_from_slam.rotation.to_rotation_matrix())
             .unwrap_or_default();
+        // The accelerometer measures the tilt directly; the track fit is for robots without one.
+        let tilt = if t_s - self.gravity_t_s < GRAVITY_FRESH_S {
+            Vector3::zeros()
+        } else {
+            tilt
+        };
         // Rotate about the robot by the tilt and dyaw, then move it by k * d.
         let delta =
             Isometry3::from_parts(
@@ -276,11 +333,18 @@ impl Agent {
                 UnitQuaternion::from_scaled_axis(tilt)
                     * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), dyaw),
             ) * Isometry3::from_parts(Translation3::from(-est_p), UnitQuaternion::identity());
+        self.move_frame(&delta);
+    }
+
+    /// Moves the map frame's anchoring by `delta` (map <- corrected map): the SLAM anchor, the
+    /// odometry frame, the last pose, the recent map heights and the stored IMU samples all
+    /// follow, so nothing measured before and after the correction disagrees by it.
+    fn move_frame(&mut self, delta: &Isometry3<f64>) {
         if let Some(a) = self.anchor.as_mut() {
             a.map_from_slam = delta * a.map_from_slam;
         }
         self.mapper.follow_frame(
-            &delta,
+            delta,
             self.cfg.gnss.map_follow_radius_m,
             self.cfg.gnss.map_follow_age_s,
         );
@@ -290,6 +354,23 @@ impl Agent {
         if let Some((p, _)) = self.at_scan.as_mut() {
             *p = PoseMap::from_iso(delta * p.iso);
         }
+        self.gravity.rotate_frame(&delta.rotation);
+    }
+
+    /// Tilts the frame about the robot at `pose` by the accelerometer's correction, when the
+    /// last window gives one. Returns whether it did.
+    fn correct_tilt_from_gravity(&mut self, t_s: f64, pose: &PoseMap) -> bool {
+        let Ok(tilt) = self.gravity.correction() else {
+            return false;
+        };
+        let p = pose.iso.translation.vector;
+        let delta = Isometry3::from_parts(
+            Translation3::from(p),
+            UnitQuaternion::from_scaled_axis(tilt),
+        ) * Isometry3::from_parts(Translation3::from(-p), UnitQuaternion::identity());
+        self.move_frame(&delta);
+        self.gravity_t_s = t_s;
+        true
     }
 
     /// Anchors the SLAM frame in the map frame at the first scan.
@@ -311,6 +392,18 @@ impl Agent {
                 let pitch = self.gnss.pitch_rad(t_s).unwrap_or(0.0);
                 let rot = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw)
                     * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), pitch);
+                // An accelerometer gives the roll too (and the pitch, better than a 1 m baseline).
+                let rot = match self.gravity.measured_up(0.0) {
+                    Ok(up_body) => {
+                        let level = UnitQuaternion::from_scaled_axis(
+                            slam::gravity::tilt_to_vertical(&up_body),
+                        );
+                        let x = level * Vector3::x();
+                        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw - x.y.atan2(x.x))
+                            * level
+                    }
+                    Err(_) => rot,
+                };
                 let base = enu - rot * Vector3::new(ant[0], ant[1], ant[2]);
                 tracing::info!(
                     "map frame: ENU at datum {:.7}, {:.7}, {:.2} m; start pose ({:.2}, {:.2}) yaw {:.1} deg from GNSS",
@@ -331,6 +424,11 @@ impl Agent {
                 }
             }
         });
+        // IMU samples so far were kept in the body frame (no attitude yet).
+        if let Some(a) = &self.anchor {
+            let q = a.map_from_slam.rotation;
+            self.gravity.rotate_frame(&q);
+        }
     }
 
     /// The map frame's anchoring, once the first scan has arrived.
@@ -364,17 +462,21 @@ impl Agent {
             failures: self.slam_health.failures + u32::from(d.fell_back_to_prior),
         };
         rep.slam_failed = d.fell_back_to_prior;
-        let map_from_slam = self
-            .anchor
-            .as_ref()
-            .map(|a| a.map_from_slam)
-            .unwrap_or_else(Isometry3::identity);
-        let pose = PoseMap::from_iso(map_from_slam * out.pose_map_base);
+        let anchored = |a: &Option<Anchor>| {
+            a.as_ref()
+                .map_or_else(Isometry3::identity, |a| a.map_from_slam)
+        };
+        let mut map_from_slam = anchored(&self.anchor);
+        let mut pose = PoseMap::from_iso(map_from_slam * out.pose_map_base);
         let jump_m = self.pose_now().map_or(0.0, |p| {
             (p.iso.translation.vector - pose.iso.translation.vector)
                 .xy()
                 .norm()
         });
+        if self.correct_tilt_from_gravity(scan.stamp_s, &pose) {
+            map_from_slam = anchored(&self.anchor);
+            pose = PoseMap::from_iso(map_from_slam * out.pose_map_base);
+        }
         self.at_scan = Some((pose, None));
         self.map_from_odom = out.pose_map_odom.map(|m| map_from_slam * m);
 
@@ -398,10 +500,10 @@ impl Agent {
             common::geom::wrap_angle(pitch - gp).abs()
                 > self.cfg.gnss.pose_trust_pitch_deg.to_radians()
         });
-        let mapped = if jump_m > self.cfg.gnss.pose_jump_max_m
+        self.scan_pose_trusted = !(jump_m > self.cfg.gnss.pose_jump_max_m
             || pitch_off
-            || !self.pose_trusted(scan.stamp_s)
-        {
+            || !self.pose_trusted(scan.stamp_s));
+        let mapped = if !self.scan_pose_trusted {
             self.scans_not_mapped += 1;
             tracing::debug!(
                 "sweep at {:.2} s not mapped: pose jumped {jump_m:.2} m, or pitch or position disagrees with GNSS",
@@ -437,6 +539,14 @@ impl Agent {
             }),
         );
         self.safety_t_s = scan.stamp_s;
+        self.lasting_stop = match (self.safety.stop, self.safety.zone_nearest_m) {
+            (true, Some((x, y))) => {
+                let q = pose.iso * nalgebra::Point3::new(x, y, 0.0);
+                let since = self.lasting_stop.map_or(scan.stamp_s, |(t, _)| t);
+                Some((since, (q.x, q.y)))
+            }
+            _ => None,
+        };
 
         // A grid change on the path asks for a replan now.
         if self.path_dirty && self.nav.is_driving() {
@@ -517,13 +627,18 @@ impl Agent {
         (window, view)
     }
 
+    /// How far either side of a taught route its corridor reaches: the robot's half width plus
+    /// `corridor_margin_m`, metres.
+    fn corridor_radius_m(&self) -> f64 {
+        0.5 * self.cfg.profile.width_m + self.cfg.repeat.corridor_margin_m
+    }
+
     /// Logs (debug) the obstacle cells within the corridor's reach of a blocked route point,
     /// with why each is what it is.
     fn log_blocking_cells(&self, at_m: (f64, f64)) {
         let lattice = self.mapper.lattice();
         let (cx, cy) = lattice.cell_of(at_m.0, at_m.1);
-        let r = (0.5 * self.cfg.profile.width_m + self.cfg.repeat.corridor_margin_m)
-            / lattice.cell_size_f64();
+        let r = self.corridor_radius_m() / lattice.cell_size_f64();
         let r = r.ceil() as i64;
         for dy in -r..=r {
             for dx in -r..=r {
@@ -553,7 +668,7 @@ impl Agent {
     /// The teach-time view of the cells a repeat's corridor check can reach along `points`.
     fn capture_teach_view(&self, points: &[common::msg::RoutePoint]) -> TeachView {
         let line: Vec<(f64, f64)> = points.iter().map(|p| (p.x_m, p.y_m)).collect();
-        let r_m = 0.5 * self.cfg.profile.width_m + self.cfg.repeat.corridor_margin_m;
+        let r_m = self.corridor_radius_m();
         let m = &self.mapper;
         TeachView::capture(&line, r_m, &m.lattice(), |cx, cy| {
             let (ground, (_, top)) = (m.height_m(cx, cy)?, m.height_range(cx, cy)?);
@@ -568,8 +683,16 @@ impl Agent {
     /// How high a cell's evidence stands, robust to a stray return or two: its highest point,
     /// but no more than two standard deviations above its mean (a car or a trunk fills its
     /// cells with returns; a single point 30 cm up in grass does not).
+    /// When the cell's newest evidence epoch alone holds `newest_evidence_min_points` returns,
+    /// it is judged on that epoch: what stands there now (a person who crossed the route a
+    /// minute ago left returns in the older epoch that the newer one, all ground, contradicts).
     fn robust_top_m(&self, cx: i64, cy: i64) -> Option<f32> {
-        let s = self.mapper.height_stats(cx, cy);
+        let newest = self.mapper.newest_height_stats(cx, cy);
+        let s = if newest.n >= self.cfg.repeat.newest_evidence_min_points {
+            newest
+        } else {
+            self.mapper.height_stats(cx, cy)
+        };
         (s.n > 0).then(|| s.max_m.min(s.mean_m + 2.0 * s.var_m2.sqrt()) as f32)
     }
 
@@ -581,7 +704,7 @@ impl Agent {
         // The same cells as `plan_grid` (`PlanGrid::from_cells` puts the origin there too).
         let origin = (window.min_cx as f64 * s, window.min_cy as f64 * s);
         let mut grid = PlanGrid::new(window.width, window.height, s, origin);
-        let r_m = 0.5 * self.cfg.profile.width_m + self.cfg.repeat.corridor_margin_m;
+        let r_m = self.corridor_radius_m();
         let r = (r_m / s).floor() as i64;
         let rise = self.cfg.repeat.new_obstacle_rise_m as f32;
         let disc: Vec<(i64, i64)> = (-r..=r)
@@ -607,6 +730,44 @@ impl Agent {
             }
         }
         grid
+    }
+
+    /// Where a safety stop that has held for `safety_stop_block_s` stands (map frame): something
+    /// the robot may not touch, beside the corridor or too low or too new to be in the map (a
+    /// person who stopped to let the robot pass, at the robot's shoulder).
+    fn lasting_stop_m(&self) -> Option<(f64, f64)> {
+        let (since, at) = self.lasting_stop?;
+        (self.safety_t_s - since >= self.cfg.repeat.safety_stop_block_s).then_some(at)
+    }
+
+    /// Blocks the cells a lasting stop's point makes undriveable for the body's centre (within
+    /// the stop zone's half width of it), except under the robot's own footprint (`keep_free`)
+    /// where a plan has to start.
+    fn stamp_lasting_stop(&self, grid: &mut PlanGrid, keep_free: Option<(&Pose2, f64)>) {
+        let Some(p) = self.lasting_stop_m() else {
+            return;
+        };
+        let sc = &self.cfg.control.safety;
+        let s = grid.cell_size_m();
+        let r_m = 0.5 * sc.body_width_m + sc.stop_side_m + s;
+        let (px, py) = grid.world_to_cell_unbounded(p.0, p.1);
+        let r = (r_m / s).ceil() as i64;
+        for y in py - r..=py + r {
+            for x in px - r..=px + r {
+                if !grid.contains(x, y) {
+                    continue;
+                }
+                let c = grid.cell_center_m(planning::CellXY {
+                    x: x as u32,
+                    y: y as u32,
+                });
+                let under_robot = keep_free
+                    .is_some_and(|(robot, fr)| (c.0 - robot.x_m).hypot(c.1 - robot.y_m) <= fr);
+                if (c.0 - p.0).hypot(c.1 - p.1) <= r_m && !under_robot {
+                    grid.set_blocked(x, y);
+                }
+            }
+        }
     }
 
     /// The planning grid around a pose, from the mapper's cells.
@@ -646,6 +807,7 @@ impl Agent {
                 }
             }
         }
+        self.stamp_lasting_stop(&mut grid, Some((pose, r_m + 0.5 * s)));
         grid
     }
 
@@ -886,7 +1048,10 @@ impl Agent {
             self.last_plan_t_s = t_s;
             let (window, view) = self.planning_window(&pose.planar);
             let grid = self.plan_grid_in(&pose.planar, &window, &view);
-            let corridor = self.corridor_grid(&window, &view);
+            let mut corridor = self.corridor_grid(&window, &view);
+            // A stop that lasts is a blockage of the route (the person will not move while the
+            // robot is in the way): wait, then detour round it, like any other.
+            self.stamp_lasting_stop(&mut corridor, None);
             // Blocked points whose cells are worth a log line, once the follower is let go.
             let mut explain: Vec<(f64, f64)> = Vec::new();
             if let Some((f, _)) = self.repeat.as_mut() {
@@ -961,7 +1126,9 @@ impl Agent {
         };
         let lla = self.lla_of(&pose);
         let ms = self.unix_ms(t_s);
-        let trusted = self.pose_trusted(t_s);
+        // A single sweep that SLAM placed 0.4 m off at a ramp's foot became a taught waypoint
+        // the repeat then steered to.
+        let trusted = self.pose_trusted(t_s) && self.scan_pose_trusted;
         if let Some(rec) = self.recorder.as_mut().filter(|_| trusted) {
             rec.offer(pose.planar, lla, ms);
         }

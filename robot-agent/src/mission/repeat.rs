@@ -67,6 +67,16 @@ pub struct RepeatConfig {
     /// With the teach-time view of the route: an obstacle cell on the corridor blocks only when
     /// something stands this much higher than what stood there at teach time, metres.
     pub new_obstacle_rise_m: f64,
+    /// ...judged on the cell's newest evidence epoch alone once that holds this many returns
+    /// (older epochs can hold a person who has walked on).
+    pub newest_evidence_min_points: u32,
+    /// A safety stop that holds this long blocks the route where its nearest point stands, so
+    /// the repeat waits and then detours as for a blockage on the map (a person standing at the
+    /// robot's shoulder, waiting for it to pass, would otherwise wait forever with it), seconds.
+    pub safety_stop_block_s: f64,
+    /// A detour is planned only once the blockage is this close along the route (until then the
+    /// robot drives on towards it), metres.
+    pub detour_plan_within_m: f64,
 }
 
 impl Default for RepeatConfig {
@@ -88,6 +98,9 @@ impl Default for RepeatConfig {
             blockage_still_m: 0.6,
             blockage_wait_max_s: 20.0,
             new_obstacle_rise_m: 0.15,
+            newest_evidence_min_points: 10,
+            safety_stop_block_s: 3.0,
+            detour_plan_within_m: 5.0,
         }
     }
 }
@@ -95,8 +108,11 @@ impl Default for RepeatConfig {
 /// One waypoint of the route being repeated.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Waypoint {
-    /// Map position, metres.
+    /// Map position, metres (pushed off an obstacle, or where it was taught or planned).
     pub p: (f64, f64),
+    /// Where it was taught or planned: a push is undone when the obstacle goes (a person who
+    /// walked along the route pushed a run of points 16 cm aside for the rest of the return).
+    pub home: (f64, f64),
     /// Index in the taught route (driving order), None for detour points.
     pub taught: Option<usize>,
 }
@@ -175,6 +191,7 @@ impl RouteFollower {
             .enumerate()
             .map(|(i, p)| Waypoint {
                 p: *p,
+                home: *p,
                 taught: Some(i),
             })
             .collect();
@@ -312,7 +329,10 @@ impl RouteFollower {
         let waited_out = p
             .holding_since_s
             .is_some_and(|h| t_s - h >= cfg.blockage_wait_max_s);
-        if !(still || waited_out) {
+        // A blockage seen from afar is judged on sparse returns (and may be what a person left
+        // in the map a moment ago): drive on and decide from close by.
+        let near_enough = s_hit <= cfg.detour_plan_within_m;
+        if !(still || waited_out) || !near_enough {
             self.holding = close;
             return RepeatState::Waiting {
                 at_m,
@@ -410,11 +430,12 @@ impl RouteFollower {
             if along > self.cfg.check_ahead_m {
                 break;
             }
-            let p = self.wps[i].p;
-            if point_free(grid, p) {
+            let home = self.wps[i].home;
+            if point_free(grid, home) {
+                self.wps[i].p = home;
                 continue;
             }
-            if let Some(q) = push_free(grid, p, self.cfg.push_max_m) {
+            if let Some(q) = push_free(grid, home, self.cfg.push_max_m) {
                 self.wps[i].p = q;
             }
         }
@@ -590,7 +611,11 @@ impl RouteFollower {
             let first = if keep.is_some() { 0 } else { 1 };
             let spliced: Vec<Waypoint> = detour[first..detour.len() - 1]
                 .iter()
-                .map(|&p| Waypoint { p, taught: None })
+                .map(|&p| Waypoint {
+                    p,
+                    home: p,
+                    taught: None,
+                })
                 .collect();
             let d = Detour {
                 blocked_taught: self.wps[blocked].taught.unwrap_or(blocked),
@@ -762,10 +787,11 @@ mod tests {
         let mut g = empty_grid();
         // A parked car (inflated) across the route from x = 14 to 18.
         block_rect(&mut g, 14.0, 8.5, 18.0, 11.5);
-        let robot = Pose2::new(9.0, 10.0, 0.0);
+        let robot = Pose2::new(10.0, 10.0, 0.0);
         let mut f = RouteFollower::new(RepeatConfig::default(), &route, &robot);
-        // Seen, not yet acted on: the robot drives on (the car is 5 m ahead), then detours
-        // once the blockage has stayed put for blockage_confirm_s.
+        // Seen, not yet acted on: the robot drives on (the car is 4 m ahead, within
+        // detour_plan_within_m), then detours once the blockage has stayed put for
+        // blockage_confirm_s.
         assert!(matches!(
             f.update(&robot, &g, 0.0),
             RepeatState::Waiting { holding: false, .. }
@@ -797,7 +823,7 @@ mod tests {
         let route = straight_route();
         let mut g = empty_grid();
         block_rect(&mut g, 14.0, 0.0, 15.0, 19.99);
-        let robot = Pose2::new(9.0, 10.0, 0.0);
+        let robot = Pose2::new(10.0, 10.0, 0.0);
         let mut f = RouteFollower::new(RepeatConfig::default(), &route, &robot);
         f.update(&robot, &g, 0.0);
         assert!(matches!(f.update(&robot, &g, 2.5), RepeatState::Blocked(_)));
@@ -842,9 +868,11 @@ mod tests {
         let route = straight_route();
         let mut g = empty_grid();
         block_rect(&mut g, 14.0, 8.5, 18.0, 11.5);
-        let robot = Pose2::new(9.0, 10.0, 0.0);
+        let robot = Pose2::new(10.0, 10.0, 0.0);
         let cfg = RepeatConfig {
             check_ahead_m: 20.0,
+            // The re-plan below is for a blockage 8 m along the detour: decide it from here.
+            detour_plan_within_m: 20.0,
             ..RepeatConfig::default()
         };
         let mut f = RouteFollower::new(cfg, &route, &robot);
@@ -898,6 +926,11 @@ mod tests {
             point_free(&g, p) && p.1 < 10.0 && p.1 > 9.5,
             "pushed just below the bush: {p:?}"
         );
+        // What pushed it goes (a person walking on): the point is where it was taught again.
+        f.update(&robot, &empty_grid(), 1.0);
+        let w = f.waypoints().iter().find(|w| w.taught == Some(7)).unwrap();
+        assert_eq!(w.p, w.home);
+        assert!((w.p.1 - 10.0).abs() < 1e-12, "{w:?}");
     }
 
     #[test]
