@@ -185,12 +185,7 @@ impl GravityTilt {
         let span = last.t_s - first.t_s;
         if span > 1e-6 {
             let a_fwd = (last.v_mps - first.v_mps) / span;
-            let yaw = 0.5 * (first.yaw_rad + last.yaw_rad)
-                + if (last.yaw_rad - first.yaw_rad).abs() > std::f64::consts::PI {
-                    std::f64::consts::PI
-                } else {
-                    0.0
-                };
+            let yaw = first.yaw_rad + 0.5 * common::geom::wrap_angle(last.yaw_rad - first.yaw_rad);
             mean -= Vector3::new(yaw.cos() * a_fwd, yaw.sin() * a_fwd, 0.0);
         }
         let excess_mps2 = mean.norm() - G_MPS2;
