@@ -79,6 +79,13 @@ pub struct Config {
     /// Every n-th return is marched for free space (the azimuth step of a VLP-16 is 0.2 deg,
     /// far finer than a cell at the ranges that matter).
     pub beam_stride: usize,
+    /// Free space is marched out to this distance from the sensor, metres. Beyond
+    /// `processing_distance_m` only a grazing ring or two still crosses a cell's headroom, so one
+    /// crossing beam per sweep is enough there; a cell it wipes there is judged again from its
+    /// new evidence (only towards traversable or unknown): a person who walked behind the robot
+    /// left a trail that the robot sees only from afar once it has turned. At or below
+    /// `processing_distance_m` marching stops at `processing_distance_m`.
+    pub clear_reach_m: f64,
 
     /// Points of a sweep are ignored for a cell that was seen from less than
     /// 1/`far_evidence_factor` of today's distance (minus 1 m) within the last
@@ -157,6 +164,7 @@ impl Default for Config {
             clear_min_beams: 2,
             clear_margin_m: 0.05,
             beam_stride: 4,
+            clear_reach_m: 25.0,
             far_evidence_factor: 2.0,
             evidence_stale_s: 3600.0,
             evidence_epoch_s: 1.0,
@@ -267,6 +275,10 @@ impl Config {
         bad(
             (1..=64).contains(&self.beam_stride),
             "beam_stride must be in 1..=64",
+        )?;
+        bad(
+            self.clear_reach_m.is_finite() && self.clear_reach_m >= 0.0,
+            "clear_reach_m must be finite and >= 0",
         )?;
         Ok(())
     }

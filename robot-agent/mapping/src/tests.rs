@@ -21,6 +21,17 @@ fn drive(
     world: &dyn Fn(f64, f64, f64) -> f64,
     path: &[(f64, f64, f64)],
 ) -> Vec<crate::UpdateReport> {
+    drive_as(m, world, path, false)
+}
+
+/// [`drive`], the sweeps given with their sensor origin (`beams`: free space is marched) or as
+/// bare points.
+fn drive_as(
+    m: &mut Mapper,
+    world: &dyn Fn(f64, f64, f64) -> f64,
+    path: &[(f64, f64, f64)],
+    beams: bool,
+) -> Vec<crate::UpdateReport> {
     let mut rng = Rng::new(7);
     let mut reps = Vec::new();
     for w in path
@@ -41,7 +52,12 @@ fn drive(
             z_m: z,
             yaw_rad: yaw,
         };
-        reps.push(m.update_points(pts, &robot, t, Evidence::Scan).unwrap());
+        let rep = if beams {
+            m.update_sweep(pts, [x, y, z + SENSOR_H], &robot, t)
+        } else {
+            m.update_points(pts, &robot, t, Evidence::Scan)
+        };
+        reps.push(rep.unwrap());
     }
     reps
 }
@@ -440,4 +456,59 @@ fn a_later_distant_view_of_a_steps_shadowed_side_marks_the_step() {
     );
     // Flat ground seen the same two ways gains no obstacles.
     assert_eq!(run(&|_, _, _| 0.0, 20.0), 0);
+}
+
+/// A slim person in the cells at x 2.8-3.0 m, y -0.2-0.2 m until t = 2 s, a wall across
+/// x = 8 m behind it and a post at (3, 2) that stays.
+fn walker_wall_post(x: f64, y: f64, t: f64) -> f64 {
+    let person = t < 2.0 && (2.82..2.98).contains(&x) && y.abs() < 0.18;
+    if person || (8.0..8.3).contains(&x) || ((x - 3.0).abs() < 0.2 && (y - 2.0).abs() < 0.2) {
+        1.7
+    } else {
+        0.0
+    }
+}
+
+#[test]
+fn a_distant_view_through_a_walkers_trail_clears_it_and_keeps_what_stays() {
+    // Seen from 4 m while the person stands there, then only from 13-14 m (the robot has moved on):
+    // the grazing ring that crosses the cell 0.45 m up and ends on the wall proves it empty, and
+    // the next ring down shows its ground.
+    let run = |clear_reach_m: f64| {
+        let mut m = Mapper::new(Config {
+            clear_reach_m,
+            ..Config::default()
+        })
+        .unwrap();
+        drive_as(
+            &mut m,
+            &walker_wall_post,
+            &line((-1.0, -1.0), (-0.6, -1.0), 0.0, 1.9),
+            true,
+        );
+        let during = classes_in(&m, 2.81, -0.19, 2.99, 0.19);
+        assert!(count(&during, Class::is_obstacle) > 0, "{during:?}");
+        drive_as(
+            &mut m,
+            &walker_wall_post,
+            &line((-10.2, 0.0), (-10.6, 0.0), 2.0, 2.0),
+            true,
+        );
+        // Positive obstacles: the drop-off lip the negative-obstacle rule draws at the edge of
+        // the person's shadow is that rule's business (it holds while the shadow is unseen).
+        let obstacle = |c: Class| c == Class::Obstacle;
+        (
+            count(&classes_in(&m, 2.81, -0.19, 2.99, 0.19), obstacle),
+            count(&classes_in(&m, 2.9, 1.9, 3.1, 2.1), obstacle),
+        )
+    };
+    let (trail, post) = run(Config::default().clear_reach_m);
+    assert_eq!(trail, 0, "the walker's cells stayed obstacles");
+    assert!(post > 0, "the post that stays was wiped");
+    // Control: free space marched only within the processing distance keeps the trail.
+    let (trail, _) = run(0.0);
+    assert!(
+        trail > 0,
+        "control: without far clearing the trail should stay"
+    );
 }

@@ -252,7 +252,69 @@ fn draw_errors(mapper: &Mapper, r: &map_eval::MapEvalReport, png: &Path) -> anyh
     enc.set_color(png::ColorType::Rgb);
     enc.set_depth(png::BitDepth::Eight);
     enc.write_header()?.write_image_data(&img)?;
+    print_error_clusters(mapper, &r.error_cells);
     Ok(())
+}
+
+/// Prints the largest groups of wrong cells (8-connected, same kind) with where they are, so a
+/// user can `--probe` them: the picture says what went wrong, this says where to look.
+fn print_error_clusters(mapper: &Mapper, cells: &[(i64, i64, map_eval::ErrorKind)]) {
+    use std::collections::HashMap;
+    let kind_of: HashMap<(i64, i64), map_eval::ErrorKind> =
+        cells.iter().map(|&(x, y, k)| ((x, y), k)).collect();
+    let mut seen = std::collections::HashSet::new();
+    let mut groups: Vec<(map_eval::ErrorKind, Vec<(i64, i64)>)> = Vec::new();
+    for &(x, y, k) in cells {
+        if !seen.insert((x, y)) {
+            continue;
+        }
+        let mut members = vec![(x, y)];
+        let mut i = 0;
+        while i < members.len() {
+            let (cx, cy) = members[i];
+            i += 1;
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let n = (cx + dx, cy + dy);
+                    if kind_of.get(&n) == Some(&k) && seen.insert(n) {
+                        members.push(n);
+                    }
+                }
+            }
+        }
+        groups.push((k, members));
+    }
+    groups.sort_by_key(|g| std::cmp::Reverse(g.1.len()));
+    let lattice = mapper.lattice();
+    eprintln!("largest groups of wrong cells, at most 12 of each kind (kind, cells, centre x,y m, extent m):");
+    let mut shown: HashMap<map_eval::ErrorKind, usize> = HashMap::new();
+    for (k, m) in &groups {
+        let c = shown.entry(*k).or_default();
+        *c += 1;
+        if *c > 12 {
+            continue;
+        }
+        let pts: Vec<(f64, f64)> = m
+            .iter()
+            .map(|&(x, y)| lattice.cell_center_m(x, y))
+            .collect();
+        let n = pts.len() as f64;
+        let (mx, my) = pts
+            .iter()
+            .fold((0.0, 0.0), |a, p| (a.0 + p.0 / n, a.1 + p.1 / n));
+        let (x0, x1) = pts
+            .iter()
+            .fold((f64::MAX, f64::MIN), |a, p| (a.0.min(p.0), a.1.max(p.0)));
+        let (y0, y1) = pts
+            .iter()
+            .fold((f64::MAX, f64::MIN), |a, p| (a.0.min(p.1), a.1.max(p.1)));
+        eprintln!(
+            "  {k:?} {} at {mx:.1},{my:.1} ({:.1} x {:.1})",
+            m.len(),
+            x1 - x0,
+            y1 - y0
+        );
+    }
 }
 
 /// Prints a 7 x 7 block of cells around a map point: class, verdict, evidence, truth.
@@ -303,6 +365,8 @@ fn probe(
         }
         eprintln!();
     }
+    eprintln!("  centre: {}", mapper.describe(cx, cy));
+    eprintln!();
     Ok(())
 }
 

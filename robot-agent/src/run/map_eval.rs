@@ -129,7 +129,7 @@ pub struct MapEvalReport {
 }
 
 /// What went wrong in one cell.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]
 pub enum ErrorKind {
     /// Truth obstacle (a solid) marked traversable.
     MissedSolid,
