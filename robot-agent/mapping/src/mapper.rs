@@ -451,6 +451,9 @@ pub struct Mapper {
 /// The headroom band stops this far below the robot's height: a beam passing just under `h_r`
 /// over a cell says little about the robot's top (and a car body's top is about that high).
 const HEADROOM_TOP_MARGIN_M: f64 = 0.2;
+/// How far the ground beyond the processing distance may lie above or below the robot's for a
+/// beam still to be marched there, metres (the terrain, not the band, limits the far march).
+const FAR_TERRAIN_SLACK_M: f64 = 0.5;
 /// Points this far above their cell's lowest return in the sweep go through the isolated-point
 /// filter; lower ones are ground and cannot raise an obstacle on their own, metres.
 const SUSPECT_ABOVE_M: f32 = 0.04;
@@ -937,7 +940,12 @@ impl Mapper {
         let high = (self.cfg.h_r_m - HEADROOM_TOP_MARGIN_M) as f32;
         let reach = self.cfg.processing_distance_m.max(self.cfg.clear_reach_m);
         let zs = o[2];
-        let _ = robot;
+        let near = self.cfg.processing_distance_m;
+        let h0 = zs - robot.z_m;
+        let (band_lo, band_hi) = (
+            f64::from(low) - FAR_TERRAIN_SLACK_M,
+            f64::from(high) + FAR_TERRAIN_SLACK_M,
+        );
         let stride = self.cfg.beam_stride.max(1);
         let min_n = self.rules.min_points();
         let mut marched = 0usize;
@@ -949,9 +957,23 @@ impl Mapper {
                 continue;
             }
             // Never the last cells (the return's own and the one it may straddle).
-            let f1 = (1.0 - 1.5 * l / d).min(reach / d);
+            let mut f1 = (1.0 - 1.5 * l / d).min(reach / d);
             if f1 <= 0.0 {
                 continue;
+            }
+            if f1 * d > near {
+                // Beyond the processing distance only the beam's stretch that can still be in
+                // a cell's band is marched: the band about the robot's ground, widened by how
+                // far the terrain may rise or fall out there. Steeper rings leave it early.
+                let k = (pz - zs) / d;
+                let r_end = if k > 0.0 {
+                    (band_hi - h0) / k
+                } else if k < 0.0 {
+                    (band_lo - h0) / k
+                } else {
+                    f64::INFINITY
+                };
+                f1 = f1.min(r_end.max(near) / d);
             }
             marched += 1;
             let n = ((f1 * d) / step).ceil() as usize + 1;
