@@ -1270,6 +1270,36 @@ impl Mapper {
                             changed.push((cx, cy));
                         }
                     }
+                    // A cell left unknown from close by whose evidence came from out here, and
+                    // whose rules now find a step, continues an obstacle judged from close by
+                    // beside it: the upper treads of a stair whose lower ones were judged as
+                    // the robot passed. Only beside such an obstacle, so sparse far views of
+                    // open ground raise nothing.
+                    if self.cfg.far_step_distance_m > 0.0
+                        && d.class == Class::Unknown
+                        && d.class_range_m <= pd
+                        && !d.far_wiped
+                    {
+                        let (px, py) = self.lattice.cell_center_m(cx, cy);
+                        let beside_close_obstacle = (-1..=1).any(|dy| {
+                            (-1..=1).any(|dx| {
+                                (dx != 0 || dy != 0)
+                                    && self.data(cx + dx, cy + dy).is_some_and(|n| {
+                                        n.class == Class::Obstacle && n.class_range_m <= pd
+                                    })
+                            })
+                        });
+                        if beside_close_obstacle
+                            && norm2(px - robot.x_m, py - robot.y_m) <= self.cfg.far_step_distance_m
+                            && matches!(
+                                self.rules.classify(&self.neighbourhood(cx, cy)),
+                                Verdict::Step | Verdict::NeighbourStep | Verdict::TopStep
+                            )
+                        {
+                            self.data_mut(cx, cy).class = Class::Obstacle;
+                            changed.push((cx, cy));
+                        }
+                    }
                     // An obstacle that free space wiped out here (its evidence gone) is judged
                     // again from what is left, but only towards traversable or unknown: far
                     // evidence does not raise obstacles (the far-step rule aside). A trail a
