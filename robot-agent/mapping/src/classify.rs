@@ -93,6 +93,7 @@ pub struct Rules {
     tan_alpha: f64,
     max_step_m: f64,
     cell_m: f64,
+    grass_sd_m: (f64, f64),
 }
 
 impl Rules {
@@ -106,6 +107,7 @@ impl Rules {
             tan_alpha: cfg.alpha_deg.to_radians().tan(),
             max_step_m: cfg.max_step_m,
             cell_m: cfg.grid_size_m,
+            grass_sd_m: (cfg.grass_sd_min_m, cfg.grass_sd_max_m),
         }
     }
 
@@ -183,11 +185,29 @@ impl Rules {
         // minus the mean slope on either side. A kink (ramp toe) gives half its slope change, a
         // step its full height, so 5 cm and 10 cm separate even on sloped ground.
         let face_var = (0.25 * self.max_step_m).powi(2);
+        // The profile compares grounds: a grass cell's returns stand U(0, a) above its ground,
+        // lifting its mean by a/2 = sqrt(3) sd, so a 10 cm strip in grass reads as 6.5 cm against
+        // the grass's mean. Cells whose spread is grass-like (`grass_sd_min_m` to
+        // `grass_sd_max_m`: above the sensor's noise, below a face's) are taken at their ground.
+        let (sd_lo, sd_hi) = self.grass_sd_m;
+        let ground = |st: CellStats| {
+            let sd = st.var_m2.sqrt();
+            if sd > sd_lo && sd < sd_hi {
+                st.mean_m - 3f64.sqrt() * (st.var_m2 - sd_lo * sd_lo).sqrt()
+            } else {
+                st.mean_m
+            }
+        };
+        let gseen = |dx: i32, dy: i32| {
+            let st = nb[(dy + 2) as usize][(dx + 2) as usize];
+            (st.n >= self.min_points).then(|| ground(st))
+        };
+        let gc = ground(c);
         for (ux, uy) in [(1, 0), (0, 1), (1, 1), (1, -1)] {
             for s in [-1, 1] {
                 let (ax, ay) = (ux * s, uy * s);
-                let Some(h1) = seen(ax, ay) else { continue };
-                let jump = h1 - c.mean_m;
+                let Some(h1) = gseen(ax, ay) else { continue };
+                let jump = h1 - gc;
                 // A side that is itself a discontinuity (steeper than alpha) says nothing about
                 // the slope here; it is that cell's own step.
                 let side_limit = if ax != 0 && ay != 0 {
@@ -196,10 +216,10 @@ impl Rules {
                     self.h_max_m
                 };
                 let mut sides = Vec::with_capacity(2);
-                if let Some(hb) = seen(-ax, -ay) {
-                    sides.push(c.mean_m - hb);
+                if let Some(hb) = gseen(-ax, -ay) {
+                    sides.push(gc - hb);
                 }
-                if let Some(h2) = seen(2 * ax, 2 * ay) {
+                if let Some(h2) = gseen(2 * ax, 2 * ay) {
                     sides.push(h2 - h1);
                 }
                 sides.retain(|d: &f64| d.abs() <= side_limit);
@@ -419,5 +439,45 @@ mod tests {
         assert_eq!(rules().classify(&nb), Verdict::Unobserved);
         nb[2][2].n = 3;
         assert_eq!(rules().classify(&nb), Verdict::Undecided);
+    }
+}
+
+#[cfg(test)]
+mod grass_tests {
+    use super::*;
+
+    /// Grass (returns U(0, 4 cm) above the ground, plus 5 mm noise) for x < 0, a hard top `h`
+    /// above the ground for x >= 0, as cell statistics of a 5x5 block centred on the last grass
+    /// cell.
+    fn grass_then_top(h: f64) -> Neighbourhood {
+        let (a, noise) = (0.04f64, 0.005f64);
+        let grass = CellStats {
+            n: 30,
+            mean_m: a / 2.0,
+            var_m2: a * a / 12.0 + noise * noise,
+            max_m: a,
+        };
+        let top = CellStats {
+            n: 30,
+            mean_m: h,
+            var_m2: noise * noise,
+            max_m: h + 2.0 * noise,
+        };
+        let mut nb = Neighbourhood::default();
+        for row in nb.iter_mut() {
+            for (x, c) in row.iter_mut().enumerate() {
+                *c = if x <= 2 { grass } else { top };
+            }
+        }
+        nb
+    }
+
+    #[test]
+    fn a_9_cm_strip_in_grass_blocks_a_5_cm_one_does_not() {
+        let r = Rules::new(&Config::default());
+        // Against the grass's mean these read 7 and 3 cm (both under max_step_m, 7.5 cm);
+        // against its ground, 9 and 5.
+        assert_eq!(r.classify(&grass_then_top(0.09)), Verdict::Step);
+        assert_eq!(r.classify(&grass_then_top(0.05)), Verdict::Traversable);
     }
 }

@@ -62,6 +62,14 @@ pub struct Config {
     /// Beyond the source: largest height of a cell above or below the least-squares plane of its
     /// 5x5 neighbourhood (the plane fit and step test that finds 5-10 cm curbs), metres.
     pub max_step_m: f64,
+    /// Beyond the source: in the profile step test a cell whose height spread lies between
+    /// `grass_sd_min_m` (the sensor's noise on a hard surface) and `grass_sd_max_m` (below a
+    /// face's or a slope's spread) is taken as grass over its ground, at `mean - sqrt(3) sd`:
+    /// grass returns stand U(0, a) above the ground and would hide a third of a 10 cm step.
+    /// `grass_sd_max_m <= grass_sd_min_m` turns this off, metres.
+    pub grass_sd_min_m: f64,
+    /// See `grass_sd_min_m`, metres.
+    pub grass_sd_max_m: f64,
     /// Beyond the source: points higher than this above the cell's lowest evidence, when they are
     /// a minority seen in a single scan, are treated as stray dynamic points and dropped, metres.
     pub stray_height_m: f64,
@@ -159,6 +167,8 @@ impl Default for Config {
             max_variance_m2: 0.0017,
             alpha_deg: 23.0,
             max_step_m: 0.075,
+            grass_sd_min_m: 0.008,
+            grass_sd_max_m: 0.016,
             stray_height_m: 0.15,
             clear_low_m: 0.3,
             clear_min_beams: 2,
@@ -236,6 +246,10 @@ impl Config {
             "max_variance_m2 must be positive",
         )?;
         bad(self.max_step_m > 0.0, "max_step_m must be positive")?;
+        bad(
+            self.grass_sd_min_m >= 0.0 && self.grass_sd_max_m.is_finite(),
+            "grass_sd_min_m must be >= 0 and grass_sd_max_m finite",
+        )?;
         bad(
             self.evidence_epoch_s > 0.0,
             "evidence_epoch_s must be positive",
