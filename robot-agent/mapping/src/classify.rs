@@ -474,7 +474,10 @@ mod grass_tests {
 
     #[test]
     fn a_9_cm_strip_in_grass_blocks_a_5_cm_one_does_not() {
-        let r = Rules::new(&Config::default());
+        let r = Rules::new(&Config {
+            grass_sd_max_m: 0.016,
+            ..Config::default()
+        });
         // Against the grass's mean these read 7 and 3 cm (both under max_step_m, 7.5 cm);
         // against its ground, 9 and 5.
         assert_eq!(r.classify(&grass_then_top(0.09)), Verdict::Step);

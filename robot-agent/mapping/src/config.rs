@@ -66,7 +66,9 @@ pub struct Config {
     /// `grass_sd_min_m` (the sensor's noise on a hard surface) and `grass_sd_max_m` (below a
     /// face's or a slope's spread) is taken as grass over its ground, at `mean - sqrt(3) sd`:
     /// grass returns stand U(0, a) above the ground and would hide a third of a 10 cm step.
-    /// `grass_sd_max_m <= grass_sd_min_m` turns this off, metres.
+    /// `grass_sd_max_m <= grass_sd_min_m` turns this off, and off is the default: with 0.016
+    /// it takes park's obstacle recall from 0.986 to 0.994 but makes 5 cm curbs in tall grass
+    /// read 7 cm, which pushed a teach-and-repeat return 1.3 m off its line (README), metres.
     pub grass_sd_min_m: f64,
     /// See `grass_sd_min_m`, metres.
     pub grass_sd_max_m: f64,
@@ -168,7 +170,7 @@ impl Default for Config {
             alpha_deg: 23.0,
             max_step_m: 0.075,
             grass_sd_min_m: 0.008,
-            grass_sd_max_m: 0.016,
+            grass_sd_max_m: 0.0,
             stray_height_m: 0.15,
             clear_low_m: 0.3,
             clear_min_beams: 2,

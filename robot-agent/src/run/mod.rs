@@ -436,7 +436,8 @@ pub struct TeachRepeatReport {
     /// `reached`, `blocked`, `timeout` or `collision`.
     pub outcome: String,
     /// RMS lateral distance to the taught path on free stretches, metres. Not free: within 3 m
-    /// of an added obstacle, and a detour around a person until 1 m past its rejoin point.
+    /// of an added obstacle, and any detour (round a person or an added obstacle) until 1 m past its
+    /// rejoin point.
     pub tracking_rms_m: f64,
     /// Worst lateral distance on free stretches, metres.
     pub tracking_max_m: f64,
@@ -562,12 +563,12 @@ pub fn run_teach_repeat(
         .map_err(anyhow::Error::msg)?;
     let t_start = rig.t_s();
     // Per control cycle: lateral distance to the taught path, position, and whether the robot
-    // was on a detour around a person (not a free stretch, whatever the map says).
+    // was on a detour (not a free stretch, whatever the map says).
     let mut lateral: Vec<(f64, (f64, f64), bool)> = Vec::new();
     let mut seen_detours = (0usize, 0u32);
     // (detour index, where the walker stood when it was planned).
     let mut walker_detours: Vec<(usize, (f64, f64))> = Vec::new();
-    // The rejoin point of the walker detour the robot is on or has just left.
+    // The rejoin point of the detour the robot is on or has just left.
     let mut settling: Option<(f64, f64)> = None;
     let outcome = loop {
         let ev = rig.step();
@@ -594,28 +595,29 @@ pub fn run_teach_repeat(
                     }
                 }
             }
-            let walker_detour = rig.agent.route_follower().and_then(|f| {
+            // Any detour (round a person or round an added obstacle) is off the taught line on
+            // purpose: not a free stretch, however far it swings from the obstacle (a wide
+            // detour's return leg can pass more than the 3 m round the obstacle).
+            let detour = rig.agent.route_follower().and_then(|f| {
                 let k = f.detours.len().checked_sub(1)?;
-                (f.on_detour() && walker_detours.iter().any(|(j, _)| *j == k))
-                    .then(|| f.detours[k].rejoin_m)
+                f.on_detour().then(|| f.detours[k].rejoin_m)
             });
             // The follower is back on the route once the rejoin point is within its reach
             // (`reached_radius_m`), still converging onto the line: that approach belongs to the
-            // detour until the robot is `REJOIN_SETTLE_M` past the rejoin point, as the 3 m round
-            // an added obstacle do.
-            if let Some(j) = walker_detour {
+            // detour until the robot is `REJOIN_SETTLE_M` past the rejoin point.
+            if let Some(j) = detour {
                 settling = Some(j);
             }
             let near_rejoin =
                 settling.is_some_and(|j| (p.x_m - j.0).hypot(p.y_m - j.1) <= REJOIN_SETTLE_M);
-            if walker_detour.is_none() && !near_rejoin {
+            if detour.is_none() && !near_rejoin {
                 settling = None;
             }
-            let on_walker_detour = walker_detour.is_some() || near_rejoin;
+            let on_detour = detour.is_some() || near_rejoin;
             lateral.push((
                 distance_to_polyline(&taught_truth, (p.x_m, p.y_m)),
                 (p.x_m, p.y_m),
-                on_walker_detour,
+                on_detour,
             ));
             if trace_enabled() {
                 let est = rig.agent.pose_now().map(|p| p.planar).unwrap_or_default();
@@ -673,11 +675,11 @@ pub fn run_teach_repeat(
         .map(|f| f.detours.clone())
         .unwrap_or_default();
     // Free stretches: away from every obstacle that was added (their footprint plus 3 m), and
-    // not on a detour around a person.
+    // not on a detour.
     let near_obstacle = |p: (f64, f64)| obstacles.is_some_and(|o| o.distance_to(p) < 3.0);
     let free: Vec<f64> = lateral
         .iter()
-        .filter(|(_, p, walker)| !near_obstacle(*p) && !walker)
+        .filter(|(_, p, detour)| !near_obstacle(*p) && !detour)
         .map(|(d, _, _)| *d)
         .collect();
     let rms = if free.is_empty() {
