@@ -278,7 +278,7 @@ struct CellData {
     /// ground: the space the robot body needs was seen empty at least once.
     headroom: bool,
     /// Free space wiped this cell from beyond the processing distance since it was last
-    /// classified: it and the obstacles beside it may be judged again from out there.
+    /// classified: it may be judged again from out there (towards traversable or unknown).
     far_wiped: bool,
     /// The robot's footprint covered this cell (proprioception), at this ground height.
     driven: bool,
@@ -1251,11 +1251,11 @@ impl Mapper {
                     if !self.full {
                         self.pending.insert((cx, cy));
                     }
-                    // A cell judged traversable from close by, on its own close evidence, may
-                    // still turn into an obstacle from out here: the lower side of a step that
-                    // lay in the step's shadow when the robot passed shows up in a later,
-                    // distant view. Only that way round (distant evidence never clears), and
-                    // only for the profile step test.
+                    // A cell judged traversable from close by may still turn into an obstacle
+                    // from out here: the lower side of a step that lay in the step's shadow
+                    // when the robot passed shows up in a later, distant view. Only that way
+                    // round (distant evidence never clears), and only for a step verdict
+                    // against a lower neighbour seen from afar (`shadowed_step`).
                     let pd = self.cfg.processing_distance_m as f32;
                     if self.cfg.far_step_distance_m > 0.0
                         && d.class == Class::Traversable
@@ -1655,11 +1655,10 @@ impl Mapper {
         changed
     }
 
-    /// True when an 8-neighbour is a drop-off without evidence enough to be observed.
-    /// Whether a step test (profile, neighbour or top) fires at a cell because of a neighbour seen only from
-    /// beyond the processing distance that lies lower than the cell: the far side of a raised
-    /// edge, in the edge's shadow while the robot passed on the near side. Far views that make
-    /// a neighbour look higher (grass tops at grazing angles) do not count.
+    /// Whether a step test (profile, neighbour or top) fires at a cell because of a neighbour
+    /// seen only from beyond the processing distance that lies lower than the cell: the far
+    /// side of a raised edge, in the edge's shadow while the robot passed on the near side. Far
+    /// views that make a neighbour look higher (grass tops at grazing angles) do not count.
     fn shadowed_step(&self, cx: i64, cy: i64, d: &CellData) -> bool {
         let pd = self.cfg.processing_distance_m as f32;
         let own = d.evidence().stats();
@@ -1680,6 +1679,7 @@ impl Mapper {
             )
     }
 
+    /// True when an 8-neighbour is a drop-off without evidence enough to be observed.
     fn beside_drop(&self, cx: i64, cy: i64) -> bool {
         (-1..=1).any(|dy| {
             (-1..=1).any(|dx| {
