@@ -4,46 +4,25 @@
 
 use serde_json::Value;
 use std::process::Command;
-use support::{bin, workspace_root};
+use support::{bin, num, robot_agent_json, workspace_root};
 
 fn mission(scenario: &str, args: &[&str]) -> Value {
-    let out = Command::new(bin("robot-agent"))
-        .current_dir(workspace_root())
-        .args([
-            "sim",
-            "--scenario",
-            &format!("config/scenarios/{scenario}.toml"),
-            "--headless",
-        ])
-        .args(args)
-        .output()
-        .expect("run robot-agent");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "robot-agent failed: {}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let last = stdout.lines().last().expect("a report line");
-    let v: Value = serde_json::from_str(last).expect("JSON report");
+    let sc = format!("config/scenarios/{scenario}.toml");
+    let mut all = vec!["sim", "--scenario", &sc, "--headless"];
+    all.extend_from_slice(args);
+    let v = robot_agent_json(&all);
     eprintln!("{scenario} {args:?}: outcome {} final_error_m {} time_s {} collisions {} replans {} plan_ms_mean {}",
         v["outcome"], v["final_error_m"], v["time_s"], v["collisions"], v["replans"], v["plan_ms_mean"]);
     v
-}
-
-fn f(v: &Value, k: &str) -> f64 {
-    v[k].as_f64()
-        .unwrap_or_else(|| panic!("{k} missing in {v}"))
 }
 
 fn assert_reached(v: &Value) {
     assert_eq!(v["outcome"], "reached", "{v}");
     assert_eq!(v["collisions"], 0, "{v}");
     assert!(
-        f(v, "final_error_m") <= 0.5,
+        num(v, "final_error_m") <= 0.5,
         "final error {}",
-        f(v, "final_error_m")
+        num(v, "final_error_m")
     );
 }
 
@@ -197,9 +176,9 @@ fn teach_route(extra: &[&str]) -> Value {
     eprintln!("teach-route {extra:?}: {v}");
     assert_eq!(v["outcome"], "reached", "{v}");
     assert_eq!(v["collisions"], 0, "{v}");
-    assert!(f(&v, "final_error_m") <= 0.3, "{v}");
+    assert!(num(&v, "final_error_m") <= 0.3, "{v}");
     assert!(
-        f(&v, "tracking_rms_m") <= 0.05 && f(&v, "tracking_max_m") <= 0.15,
+        num(&v, "tracking_rms_m") <= 0.05 && num(&v, "tracking_max_m") <= 0.15,
         "tracking on free stretches: {v}"
     );
     assert_eq!(
@@ -224,7 +203,7 @@ fn teach_route_return_detours_round_a_car_and_a_fallen_tree() {
         .iter()
         .map(|d| d.as_f64().unwrap())
         .collect();
-    assert!(f(&v, "detours") >= 2.0, "{v}");
+    assert!(num(&v, "detours") >= 2.0, "{v}");
     assert!(
         rejoins.iter().all(|d| *d <= 2.0),
         "each detour rejoins within 2 m past its obstacle: {v}"

@@ -2,34 +2,10 @@
 //! scripted drive (`sim --record`, truth poses and the walkers' real positions included), then
 //! `slam eval --scenario` scores the SLAM trajectory and what the walkers left in the map.
 
-use serde_json::Value;
-use std::process::Command;
-use support::{bin, workspace_root};
+use support::{num, robot_agent_json};
 
 /// Seconds of the park drive to record: the scripted route passes 200 m at ~250 s.
 const DRIVE_S: &str = "260";
-
-fn run_json(args: &[&str]) -> Value {
-    let out = Command::new(bin("robot-agent"))
-        .current_dir(workspace_root())
-        .args(args)
-        .output()
-        .expect("run robot-agent");
-    assert!(
-        out.status.success(),
-        "robot-agent {args:?} failed: {}\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let last = stdout.lines().last().expect("a JSON line");
-    serde_json::from_str(last).unwrap_or_else(|e| panic!("{e}: {last}"))
-}
-
-fn f(v: &Value, k: &str) -> f64 {
-    v[k].as_f64()
-        .unwrap_or_else(|| panic!("{k} missing in {v}"))
-}
 
 /// Drift at most 0.5% over at least 200 m, and no walker points left in the final map.
 #[test]
@@ -37,7 +13,7 @@ fn park_drive_drift_and_walker_leftovers() {
     let tmp = tempfile::tempdir().expect("temp dir");
     let rec = tmp.path().join("park");
     let rec_s = rec.to_str().expect("utf-8 temp path");
-    let sim = run_json(&[
+    let sim = robot_agent_json(&[
         "sim",
         "--scenario",
         "config/scenarios/park.toml",
@@ -49,7 +25,7 @@ fn park_drive_drift_and_walker_leftovers() {
         rec_s,
     ]);
     eprintln!("sim: {sim}");
-    let e = run_json(&[
+    let e = robot_agent_json(&[
         "slam",
         "eval",
         rec_s,
@@ -63,19 +39,22 @@ fn park_drive_drift_and_walker_leftovers() {
     eprintln!(
         "slam: frames {} path_m {:.1} ate_m {:.3} drift_pct {:.3} ms_per_frame {:.1}; walkers {w}",
         e["frames"],
-        f(&e, "path_m"),
-        f(&e, "ate_m"),
-        f(&e, "drift_pct"),
-        f(&e, "ms_per_frame"),
+        num(&e, "path_m"),
+        num(&e, "ate_m"),
+        num(&e, "drift_pct"),
+        num(&e, "ms_per_frame"),
     );
-    assert!(f(&e, "path_m") >= 200.0, "drive too short: {e}");
-    assert!(f(&e, "drift_pct") <= 0.5, "drift: {e}");
-    assert!(f(&e, "ate_m") <= 0.3, "ATE: {e}");
+    assert!(num(&e, "path_m") >= 200.0, "drive too short: {e}");
+    assert!(num(&e, "drift_pct") <= 0.5, "drift: {e}");
+    assert!(num(&e, "ate_m") <= 0.3, "ATE: {e}");
     // The walkers were seen and mapped (so leftovers had every chance to appear)...
-    assert!(f(w, "points_inserted") >= 500.0, "walkers barely seen: {w}");
+    assert!(
+        num(w, "points_inserted") >= 500.0,
+        "walkers barely seen: {w}"
+    );
     // ...and none of it stayed behind them.
     assert_eq!(
-        f(w, "left_final"),
+        num(w, "left_final"),
         0.0,
         "walker points left in the final map: {w}"
     );

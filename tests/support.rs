@@ -43,6 +43,31 @@ pub fn bin(name: &str) -> PathBuf {
     p
 }
 
+/// Runs `robot-agent ARGS` in the workspace root, asserts it succeeded, and parses the last line
+/// of its standard output as JSON (the `--json` / headless report).
+pub fn robot_agent_json(args: &[&str]) -> serde_json::Value {
+    let out = Command::new(bin("robot-agent"))
+        .current_dir(workspace_root())
+        .args(args)
+        .output()
+        .expect("run robot-agent");
+    assert!(
+        out.status.success(),
+        "robot-agent {args:?} failed: {}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let last = stdout.lines().last().expect("a JSON line");
+    serde_json::from_str(last).unwrap_or_else(|e| panic!("{e}: {last}"))
+}
+
+/// The number `k` of a JSON report, panicking with the report when it is missing.
+pub fn num(v: &serde_json::Value, k: &str) -> f64 {
+    v[k].as_f64()
+        .unwrap_or_else(|| panic!("{k} missing in {v}"))
+}
+
 /// A TCP port that was free a moment ago on 127.0.0.1.
 pub fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0")
