@@ -1261,14 +1261,11 @@ impl Mapper {
                         && d.class == Class::Traversable
                         && d.class_range_m <= pd
                         && !d.driven_free(self.cfg.stray_height_m as f32)
+                        && self.distance_m(cx, cy, robot) <= self.cfg.far_step_distance_m
+                        && self.shadowed_step(cx, cy, &d)
                     {
-                        let (px, py) = self.lattice.cell_center_m(cx, cy);
-                        if norm2(px - robot.x_m, py - robot.y_m) <= self.cfg.far_step_distance_m
-                            && self.shadowed_step(cx, cy, &d)
-                        {
-                            self.data_mut(cx, cy).class = Class::Obstacle;
-                            changed.push((cx, cy));
-                        }
+                        self.data_mut(cx, cy).class = Class::Obstacle;
+                        changed.push((cx, cy));
                     }
                     // A cell left unknown from close by whose evidence came from out here, and
                     // whose rules now find a step, continues an obstacle judged from close by
@@ -1280,7 +1277,6 @@ impl Mapper {
                         && d.class_range_m <= pd
                         && !d.far_wiped
                     {
-                        let (px, py) = self.lattice.cell_center_m(cx, cy);
                         let beside_close_obstacle = (-1..=1).any(|dy| {
                             (-1..=1).any(|dx| {
                                 (dx != 0 || dy != 0)
@@ -1290,7 +1286,7 @@ impl Mapper {
                             })
                         });
                         if beside_close_obstacle
-                            && norm2(px - robot.x_m, py - robot.y_m) <= self.cfg.far_step_distance_m
+                            && self.distance_m(cx, cy, robot) <= self.cfg.far_step_distance_m
                             && matches!(
                                 self.rules.classify(&self.neighbourhood(cx, cy)),
                                 Verdict::Step | Verdict::NeighbourStep | Verdict::TopStep
@@ -1311,8 +1307,7 @@ impl Mapper {
                     // fringe (measured on `slopes`: recall 0.988 -> 0.967).
                     let again = d.class == Class::Obstacle && d.far_wiped;
                     if again {
-                        let (px, py) = self.lattice.cell_center_m(cx, cy);
-                        let dist = norm2(px - robot.x_m, py - robot.y_m);
+                        let dist = self.distance_m(cx, cy, robot);
                         let nb = self.neighbourhood(cx, cy);
                         let v = self.rules.classify(&nb).class();
                         let new = match v {
@@ -1360,8 +1355,7 @@ impl Mapper {
             // An obstacle judged from close by is not cleared by a verdict from much farther
             // away, where a 10 cm face is a couple of sparse returns (free space still clears
             // it: a wiped cell forgets where it was judged from).
-            let (px, py) = self.lattice.cell_center_m(cx, cy);
-            let dist = norm2(px - robot.x_m, py - robot.y_m) as f32;
+            let dist = self.distance_m(cx, cy, robot) as f32;
             let judged_at = d.class_range_m;
             let far = dist > self.cfg.far_evidence_factor as f32 * judged_at + 1.0;
             let new = if old.is_obstacle() && !new.is_obstacle() && far {
@@ -1677,6 +1671,12 @@ impl Mapper {
                 self.rules.classify(&self.neighbourhood(cx, cy)),
                 Verdict::Step | Verdict::NeighbourStep | Verdict::TopStep
             )
+    }
+
+    /// Horizontal distance from the robot to a cell's centre, metres.
+    fn distance_m(&self, cx: i64, cy: i64, robot: &RobotPose) -> f64 {
+        let (px, py) = self.lattice.cell_center_m(cx, cy);
+        norm2(px - robot.x_m, py - robot.y_m)
     }
 
     /// True when an 8-neighbour is a drop-off without evidence enough to be observed.
