@@ -112,6 +112,7 @@ impl Lattice {
     }
 
     /// The tile holding a global cell, and the cell's (column, row) inside it.
+    #[inline]
     pub fn tile_of_cell(&self, cx: i64, cy: i64) -> (TileIndex, (u16, u16)) {
         let n = self.tile_cells as i64;
         if self.tile_cells.is_power_of_two() {

@@ -339,6 +339,27 @@ struct TileSlot {
     last_publish_s: f64,
 }
 
+/// The beams of one sweep over one cell.
+#[derive(Clone, Copy)]
+struct Pass {
+    /// The ground the cell's crossing beams are measured from (NaN: not visited this sweep).
+    g: f32,
+    /// The lowest crossing in the headroom band (absolute height, metres).
+    lo: f32,
+    /// Beams that crossed the cell in the headroom band.
+    n: u16,
+}
+
+impl Default for Pass {
+    fn default() -> Self {
+        Self {
+            g: f32::NAN,
+            lo: f32::INFINITY,
+            n: 0,
+        }
+    }
+}
+
 /// Scratch arrays over a square window of cells around the robot, reused between updates.
 struct Window {
     half: i64,
@@ -352,15 +373,16 @@ struct Window {
     touched: Vec<usize>,
     mark: Vec<u32>,
     generation: u32,
-    /// Beams of this sweep that crossed the cell in the headroom band, and the lowest of them
-    /// (absolute height, metres).
-    pass_n: Vec<u16>,
-    pass_lo: Vec<f32>,
-    /// The ground a cell's crossing beams are measured from (NaN: not visited this sweep).
-    pass_g: Vec<f32>,
+    /// Free space of this sweep per cell, all a beam step needs in one place.
+    pass: Vec<Pass>,
     /// Stored ground per cell for the ceilings (NaN: not looked up; reset after each use).
     stored_ground: Vec<f32>,
     pass_touched: Vec<usize>,
+    /// Per-cell stats as the rules see them, cached during `reclassify` (generation, stats).
+    stats: Vec<std::cell::Cell<(u32, CellStats)>>,
+    stats_generation: u32,
+    /// Whether `stats` may be used: only while evidence stands still.
+    stats_on: bool,
 }
 
 impl Window {
@@ -379,11 +401,12 @@ impl Window {
             touched: Vec::new(),
             mark: vec![0; n],
             generation: 0,
-            pass_n: vec![0; n],
-            pass_lo: vec![f32::INFINITY; n],
-            pass_g: vec![f32::NAN; n],
+            pass: vec![Pass::default(); n],
             stored_ground: vec![f32::NAN; n],
             pass_touched: Vec::new(),
+            stats: vec![std::cell::Cell::new((0, CellStats::default())); n],
+            stats_generation: 0,
+            stats_on: false,
         }
     }
     fn local(&self, cx: i64, cy: i64) -> Option<usize> {
@@ -406,12 +429,27 @@ impl Window {
         }
         self.touched.clear();
         for &i in &self.pass_touched {
-            self.pass_n[i] = 0;
-            self.pass_lo[i] = f32::INFINITY;
-            self.pass_g[i] = f32::NAN;
+            self.pass[i] = Pass::default();
         }
         self.pass_touched.clear();
     }
+    /// Starts using the stats cache afresh (evidence will stand still until `end_stats`).
+    fn begin_stats(&mut self) {
+        self.stats_generation = self.stats_generation.wrapping_add(1);
+        if self.stats_generation == 0 {
+            self.stats
+                .iter_mut()
+                .for_each(|c| *c.get_mut() = (0, CellStats::default()));
+            self.stats_generation = 1;
+        }
+        self.stats_on = true;
+    }
+
+    /// Evidence may change again: the stats cache is off.
+    fn end_stats(&mut self) {
+        self.stats_on = false;
+    }
+
     /// Starts a new de-duplication generation for `mark`.
     fn next_generation(&mut self) -> u32 {
         self.generation = self.generation.wrapping_add(1);
@@ -446,6 +484,8 @@ pub struct Mapper {
     last_slot: std::cell::Cell<(TileIndex, usize)>,
     /// 1 / cell size, per metre.
     inv_cell_m: f64,
+    /// The lattice's cell edge, metres (its rounding done once: centres are asked for per cell).
+    cell_m: f64,
 }
 
 /// The headroom band stops this far below the robot's height: a beam passing just under `h_r`
@@ -499,6 +539,7 @@ impl Mapper {
             full: false,
             last_slot: std::cell::Cell::new((TileIndex { tx: 0, ty: 0 }, usize::MAX)),
             inv_cell_m: 1.0 / cfg_cell,
+            cell_m: cfg_cell,
         })
     }
 
@@ -726,7 +767,7 @@ impl Mapper {
                 continue;
             }
             let (cx, cy) = self.win.global(i);
-            let (ccx, ccy) = self.lattice.cell_center_m(cx, cy);
+            let (ccx, ccy) = self.center_m(cx, cy);
             let range_m = norm2(ccx - robot.x_m, ccy - robot.y_m) as f32;
             let far_factor = self.cfg.far_evidence_factor as f32;
             let stale_s = self.cfg.evidence_stale_s as f32;
@@ -949,6 +990,11 @@ impl Mapper {
         let stride = self.cfg.beam_stride.max(1);
         let min_n = self.rules.min_points();
         let mut marched = 0usize;
+        let side = self.win.side;
+        let (ux0, uy0) = (
+            o[0] * inv_l - (self.win.cx0 - self.win.half) as f64,
+            o[1] * inv_l - (self.win.cy0 - self.win.half) as f64,
+        );
         for p in pts.iter().step_by(stride) {
             let (px, py, pz) = (f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
             let (dx, dy) = (px - o[0], py - o[1]);
@@ -978,20 +1024,29 @@ impl Mapper {
             marched += 1;
             let n = ((f1 * d) / step).ceil() as usize + 1;
             let mut last = usize::MAX;
+            // Stepped in window cells: the step's cell is its coordinates truncated (negative
+            // ones are outside the window anyway).
+            let per = f1 / ((n - 1) as f64);
+            let (sx, sy, sz) = (dx * per * inv_l, dy * per * inv_l, (pz - zs) * per);
             for k in 1..n {
-                let f = f1 * (k as f64) / ((n - 1) as f64);
-                let (x, y) = (o[0] + dx * f, o[1] + dy * f);
-                let (cx, cy) = (floor_i64(x * inv_l), floor_i64(y * inv_l));
-                let Some(i) = self.win.local(cx, cy) else {
+                let kf = k as f64;
+                let (ux, uy) = (ux0 + sx * kf, uy0 + sy * kf);
+                if ux < 0.0 || uy < 0.0 {
                     continue;
-                };
+                }
+                let (ix, iy) = (ux as usize, uy as usize);
+                if ix >= side || iy >= side {
+                    continue;
+                }
+                let i = iy * side + ix;
                 if i == last {
                     continue;
                 }
                 last = i;
-                if self.win.pass_g[i].is_nan() {
+                if self.win.pass[i].g.is_nan() {
                     // First visit this sweep: the cell's ground, or infinity when unknown.
                     let mut g = self.win.zmin[i];
+                    let (cx, cy) = self.win.global(i);
                     if let Some(dd) = self.data(cx, cy) {
                         let e = dd.evidence();
                         if e.n >= min_n {
@@ -1000,18 +1055,19 @@ impl Mapper {
                             g = g.min(dd.driven_z);
                         }
                     }
-                    self.win.pass_g[i] = g;
+                    self.win.pass[i].g = g;
                     self.win.pass_touched.push(i);
                 }
-                let g = self.win.pass_g[i];
-                let z = (zs + (pz - zs) * f) as f32;
+                let g = self.win.pass[i].g;
+                let z = (zs + sz * kf) as f32;
                 let h = z - g;
                 if !(low..=high).contains(&h) {
                     continue;
                 }
-                self.win.pass_n[i] = self.win.pass_n[i].saturating_add(1);
-                if z < self.win.pass_lo[i] {
-                    self.win.pass_lo[i] = z;
+                let ps = &mut self.win.pass[i];
+                ps.n = ps.n.saturating_add(1);
+                if z < ps.lo {
+                    ps.lo = z;
                 }
             }
         }
@@ -1036,7 +1092,7 @@ impl Mapper {
         let (rcx, rcy) = (self.win.cx0, self.win.cy0);
         for &i in &touched {
             let (cx, cy) = self.win.global(i);
-            let (n, lo) = (self.win.pass_n[i], self.win.pass_lo[i]);
+            let (n, lo) = (self.win.pass[i].n, self.win.pass[i].lo);
             if n == 0 {
                 continue;
             }
@@ -1167,7 +1223,7 @@ impl Mapper {
         let mut out = Vec::new();
         for cy in y0..=y1 {
             for cx in x0..=x1 {
-                let (px, py) = self.lattice.cell_center_m(cx, cy);
+                let (px, py) = self.center_m(cx, cy);
                 let (dx, dy) = (px - robot.x_m, py - robot.y_m);
                 let (u, v) = (c * dx + s * dy, -s * dx + c * dy);
                 if u.abs() <= hl && v.abs() <= hw {
@@ -1186,6 +1242,7 @@ impl Mapper {
         self.win.cy0 = rcy;
         let l = self.cfg.grid_size_m;
         let pd_cells = self.cfg.processing_distance_m / l;
+        self.win.begin_stats();
         let within = |cx: i64, cy: i64| norm2((cx - rcx) as f64, (cy - rcy) as f64) <= pd_cells;
 
         // The cells to classify: dirty ones dilated by the 5x5 rule neighbourhood.
@@ -1374,8 +1431,8 @@ impl Mapper {
             }
         }
 
-        // Negative obstacles (step 6b).
         changed.extend(self.negative_obstacles(robot));
+        self.win.end_stats();
         rep.class_changes = changed.len();
 
         // Inflation and costs (step 5), around cells whose class changed.
@@ -1409,13 +1466,27 @@ impl Mapper {
                     }
                 }
             }
-            for &(cx, cy) in &refreshed {
-                mark(&mut self.win, cx, cy, &mut out_cells);
-            }
         }
         for (cx, cy) in out_cells {
-            let cell = self.output_cell(cx, cy);
+            let cell = self.output_cell(cx, cy, None);
             self.write_live(cx, cy, cell);
+        }
+        // Cells whose class and nearby sources did not change keep their state and cost; only
+        // their height, hits and stamp are news. (The nearest-source search is most of the
+        // output's cost, and most refreshed cells are open ground with no source in reach.)
+        if !self.full {
+            for (cx, cy) in refreshed {
+                let Some(i) = self.win.local(cx, cy) else {
+                    continue;
+                };
+                if self.win.mark[i] == g {
+                    continue;
+                }
+                self.win.mark[i] = g;
+                let kept = self.live_cell(cx, cy).map(|c| (c.state, c.cost));
+                let cell = self.output_cell(cx, cy, kept);
+                self.write_live(cx, cy, cell);
+            }
         }
     }
 
@@ -1423,8 +1494,10 @@ impl Mapper {
         c.is_obstacle() || (self.cfg.inflate_undecided && c == Class::Undecided)
     }
 
-    /// The final cell: state and cost from the class and the nearest inflation source.
-    fn output_cell(&self, cx: i64, cy: i64) -> Cell {
+    /// The final cell: state and cost from the class and the nearest inflation source. `kept`:
+    /// the state and cost the cell showed, reused for a traversable cell when no source near it
+    /// changed since.
+    fn output_cell(&self, cx: i64, cy: i64, kept: Option<(CellState, u8)>) -> Cell {
         let Some(d) = self.data(cx, cy) else {
             return Cell::UNKNOWN;
         };
@@ -1440,24 +1513,10 @@ impl Mapper {
         let (state, cost) = match d.class {
             Class::Unknown | Class::Undecided | Class::Overhung => return Cell::UNKNOWN,
             Class::Obstacle | Class::NegativeObstacle => (CellState::Obstacle, 255),
-            Class::Traversable => {
-                let near = self.offsets.iter().find(|(_, dx, dy)| {
-                    self.data(cx + dx, cy + dy)
-                        .is_some_and(|n| self.is_source(n.class))
-                });
-                match near {
-                    Some((dist, _, _)) if *dist <= self.cfg.obstacle_distance_m + 1e-9 => {
-                        (CellState::Inflated, 254)
-                    }
-                    Some((dist, _, _)) => {
-                        let c = f64::from(self.cfg.cost_max)
-                            * (-(dist - self.cfg.obstacle_distance_m) / self.cfg.cost_decay_m)
-                                .exp();
-                        (CellState::Traversable, c.round() as u8)
-                    }
-                    None => (CellState::Traversable, 0),
-                }
-            }
+            Class::Traversable => match kept {
+                Some(k @ (CellState::Traversable | CellState::Inflated, _)) => k,
+                _ => self.inflation(cx, cy),
+            },
         };
         let height_cm = if d.class == Class::NegativeObstacle && ev.n == 0 {
             0
@@ -1471,6 +1530,33 @@ impl Mapper {
             hits: d.hits.max(1),
             stamp_s: d.stamp_s,
         }
+    }
+
+    /// State and cost of a traversable cell from the nearest inflation source around it.
+    fn inflation(&self, cx: i64, cy: i64) -> (CellState, u8) {
+        let near = self.offsets.iter().find(|(_, dx, dy)| {
+            self.data(cx + dx, cy + dy)
+                .is_some_and(|n| self.is_source(n.class))
+        });
+        match near {
+            Some((dist, _, _)) if *dist <= self.cfg.obstacle_distance_m + 1e-9 => {
+                (CellState::Inflated, 254)
+            }
+            Some((dist, _, _)) => {
+                let c = f64::from(self.cfg.cost_max)
+                    * (-(dist - self.cfg.obstacle_distance_m) / self.cfg.cost_decay_m).exp();
+                (CellState::Traversable, c.round() as u8)
+            }
+            None => (CellState::Traversable, 0),
+        }
+    }
+
+    /// The output cell currently held for a global cell.
+    fn live_cell(&self, cx: i64, cy: i64) -> Option<Cell> {
+        let (t, (c, r)) = self.lattice.tile_of_cell(cx, cy);
+        let s = self.slot(t)?;
+        let n = self.lattice.tile_cells as usize;
+        Some(self.slots[s].live[r as usize * n + c as usize])
     }
 
     fn write_live(&mut self, cx: i64, cy: i64, cell: Cell) {
@@ -1530,7 +1616,7 @@ impl Mapper {
         let mut changed = Vec::new();
         for cy in y0..=y1 {
             for cx in x0..=x1 {
-                let (px, py) = self.lattice.cell_center_m(cx, cy);
+                let (px, py) = self.center_m(cx, cy);
                 let (dx, dy) = (px - robot.x_m, py - robot.y_m);
                 let dist = norm2(dx, dy);
                 if dist < r_min || dist > r_max {
@@ -1569,7 +1655,7 @@ impl Mapper {
                     if !self.data(nx, ny).is_some_and(is_ground) {
                         continue;
                     }
-                    let (qx, qy) = self.lattice.cell_center_m(nx, ny);
+                    let (qx, qy) = self.center_m(nx, ny);
                     let dq = norm2(qx - robot.x_m, qy - robot.y_m);
                     if dq < dist && best.is_none_or(|b| dq < b.0) {
                         best = Some((dq, nx, ny));
@@ -1675,7 +1761,7 @@ impl Mapper {
 
     /// Horizontal distance from the robot to a cell's centre, metres.
     fn distance_m(&self, cx: i64, cy: i64, robot: &RobotPose) -> f64 {
-        let (px, py) = self.lattice.cell_center_m(cx, cy);
+        let (px, py) = self.center_m(cx, cy);
         norm2(px - robot.x_m, py - robot.y_m)
     }
 
@@ -1695,27 +1781,54 @@ impl Mapper {
 
     fn neighbourhood(&self, cx: i64, cy: i64) -> Neighbourhood {
         let mut nb = Neighbourhood::default();
-        let min = self.rules.min_points();
+        let on = self.win.stats_on;
+        let g = self.win.stats_generation;
         for (y, row) in nb.iter_mut().enumerate() {
             for (x, s) in row.iter_mut().enumerate() {
-                if let Some(d) = self.data(cx + x as i64 - 2, cy + y as i64 - 2) {
-                    let st = d.evidence().stats();
-                    if st.n >= min {
-                        *s = st;
-                    } else if d.driven {
-                        *s = CellStats {
-                            n: min,
-                            mean_m: f64::from(d.driven_z),
-                            var_m2: 0.0,
-                            max_m: f64::from(d.driven_z),
+                let (nx, ny) = (cx + x as i64 - 2, cy + y as i64 - 2);
+                // Neighbourhoods overlap (a cell is in up to 25 of them per update): inside
+                // `reclassify`, where evidence stands still, each cell's stats are computed once.
+                match self.win.local(nx, ny).filter(|_| on) {
+                    Some(i) => {
+                        let (cg, st) = self.win.stats[i].get();
+                        *s = if cg == g {
+                            st
+                        } else {
+                            let st = self.rule_stats(nx, ny);
+                            self.win.stats[i].set((g, st));
+                            st
                         };
-                    } else {
-                        s.n = st.n;
                     }
+                    None => *s = self.rule_stats(nx, ny),
                 }
             }
         }
         nb
+    }
+
+    /// A cell as the rules see it: its evidence's stats, the driven ground when the evidence is
+    /// too thin, or only the point count.
+    fn rule_stats(&self, cx: i64, cy: i64) -> CellStats {
+        let min = self.rules.min_points();
+        let Some(d) = self.data(cx, cy) else {
+            return CellStats::default();
+        };
+        let st = d.evidence().stats();
+        if st.n >= min {
+            st
+        } else if d.driven {
+            CellStats {
+                n: min,
+                mean_m: f64::from(d.driven_z),
+                var_m2: 0.0,
+                max_m: f64::from(d.driven_z),
+            }
+        } else {
+            CellStats {
+                n: st.n,
+                ..CellStats::default()
+            }
+        }
     }
 
     fn data(&self, cx: i64, cy: i64) -> Option<&CellData> {
@@ -1740,6 +1853,15 @@ impl Mapper {
         (
             floor_i64(x_m * self.inv_cell_m),
             floor_i64(y_m * self.inv_cell_m),
+        )
+    }
+
+    /// Centre of a global cell, map frame (the lattice's rule).
+    #[inline]
+    fn center_m(&self, cx: i64, cy: i64) -> (f64, f64) {
+        (
+            (cx as f64 + 0.5) * self.cell_m,
+            (cy as f64 + 0.5) * self.cell_m,
         )
     }
 
