@@ -15,6 +15,8 @@ pub struct CellStats {
     pub var_m2: f64,
     /// Highest point, metres.
     pub max_m: f64,
+    /// Lowest point, metres.
+    pub min_m: f64,
 }
 
 /// The classification of a cell before inflation.
@@ -186,14 +188,16 @@ impl Rules {
         // step its full height, so 5 cm and 10 cm separate even on sloped ground.
         let face_var = (0.25 * self.max_step_m).powi(2);
         // The profile compares grounds: a grass cell's returns stand U(0, a) above its ground,
-        // lifting its mean by a/2 = sqrt(3) sd, so a 10 cm strip in grass reads as 6.5 cm against
-        // the grass's mean. Cells whose spread is grass-like (`grass_sd_min_m` to
-        // `grass_sd_max_m`: above the sensor's noise, below a face's) are taken at their ground.
+        // lifting its mean by a/2, so a 10 cm strip in grass reads as 6.5 cm against the
+        // grass's mean. Cells whose spread is grass-like (`grass_sd_min_m` to `grass_sd_max_m`:
+        // above the sensor's noise, below a face's) are taken at their lowest return: n points
+        // spread over [0, a] put it a/(n+1) above the ground, far steadier than the mean less
+        // sqrt(3) sd, whose few-point spread estimate swung 5 cm curbs over the step limit.
         let (sd_lo, sd_hi) = self.grass_sd_m;
         let ground = |st: CellStats| {
             let sd = st.var_m2.sqrt();
             if sd > sd_lo && sd < sd_hi {
-                st.mean_m - 3f64.sqrt() * (st.var_m2 - sd_lo * sd_lo).sqrt()
+                st.min_m
             } else {
                 st.mean_m
             }
@@ -215,12 +219,15 @@ impl Rules {
                 } else {
                     self.h_max_m
                 };
+                // The slopes beside come from the means, one estimator on both ends of each:
+                // a grass cell's lowest return against a neighbour's mean (its spread just
+                // outside the grass bounds) would read the grass's lift as a slope.
                 let mut sides = Vec::with_capacity(2);
-                if let Some(hb) = gseen(-ax, -ay) {
-                    sides.push(gc - hb);
+                if let (Some(hb), Some(hc)) = (seen(-ax, -ay), seen(0, 0)) {
+                    sides.push(hc - hb);
                 }
-                if let Some(h2) = gseen(2 * ax, 2 * ay) {
-                    sides.push(h2 - h1);
+                if let (Some(h2), Some(h1m)) = (seen(2 * ax, 2 * ay), seen(ax, ay)) {
+                    sides.push(h2 - h1m);
                 }
                 sides.retain(|d: &f64| d.abs() <= side_limit);
                 if sides.is_empty() {
@@ -325,6 +332,7 @@ mod tests {
                     mean_m: f(px, py),
                     var_m2: var,
                     max_m: f(px, py) + 2.0 * var.sqrt(),
+                    min_m: f(px, py) - 2.0 * var.sqrt(),
                 };
             }
         }
@@ -456,12 +464,15 @@ mod grass_tests {
             mean_m: a / 2.0,
             var_m2: a * a / 12.0 + noise * noise,
             max_m: a,
+            // The expected lowest of 30 points spread evenly over [0, a].
+            min_m: a / 31.0,
         };
         let top = CellStats {
             n: 30,
             mean_m: h,
             var_m2: noise * noise,
             max_m: h + 2.0 * noise,
+            min_m: h - 2.0 * noise,
         };
         let mut nb = Neighbourhood::default();
         for row in nb.iter_mut() {
@@ -474,13 +485,16 @@ mod grass_tests {
 
     #[test]
     fn a_9_cm_strip_in_grass_blocks_a_5_cm_one_does_not() {
-        let r = Rules::new(&Config {
-            grass_sd_max_m: 0.016,
-            ..Config::default()
-        });
+        let r = Rules::new(&Config::default());
         // Against the grass's mean these read 7 and 3 cm (both under max_step_m, 7.5 cm);
         // against its ground, 9 and 5.
         assert_eq!(r.classify(&grass_then_top(0.09)), Verdict::Step);
         assert_eq!(r.classify(&grass_then_top(0.05)), Verdict::Traversable);
+        // Without the grass reading the 9 cm strip hides in the grass.
+        let off = Rules::new(&Config {
+            grass_sd_max_m: 0.0,
+            ..Config::default()
+        });
+        assert_eq!(off.classify(&grass_then_top(0.09)), Verdict::Traversable);
     }
 }

@@ -246,6 +246,7 @@ impl Moments {
             mean_m: mean,
             var_m2: (self.szz / n - mean * mean).max(0.0),
             max_m: f64::from(self.zmax),
+            min_m: f64::from(self.zmin),
         }
     }
 }
@@ -1822,6 +1823,7 @@ impl Mapper {
                 mean_m: f64::from(d.driven_z),
                 var_m2: 0.0,
                 max_m: f64::from(d.driven_z),
+                min_m: f64::from(d.driven_z),
             }
         } else {
             CellStats {
