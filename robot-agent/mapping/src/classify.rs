@@ -19,6 +19,33 @@ pub struct CellStats {
     pub min_m: f64,
 }
 
+/// The mean of the side slopes within a limit (at most two, so no allocation per test).
+struct Sides {
+    limit: f64,
+    sum: f64,
+    n: u32,
+}
+
+impl Sides {
+    fn new(limit: f64) -> Self {
+        Self {
+            limit,
+            sum: 0.0,
+            n: 0,
+        }
+    }
+    /// Counts a side unless it jumps by more than the limit (then it is a step of its own).
+    fn add(&mut self, d: f64) {
+        if d.abs() <= self.limit {
+            self.sum += d;
+            self.n += 1;
+        }
+    }
+    fn mean(&self) -> Option<f64> {
+        (self.n > 0).then(|| self.sum / f64::from(self.n))
+    }
+}
+
 /// The classification of a cell before inflation.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Class {
@@ -222,18 +249,16 @@ impl Rules {
                 // The slopes beside come from the means, one estimator on both ends of each:
                 // a grass cell's lowest return against a neighbour's mean (its spread just
                 // outside the grass bounds) would read the grass's lift as a slope.
-                let mut sides = Vec::with_capacity(2);
+                let mut sides = Sides::new(side_limit);
                 if let (Some(hb), Some(hc)) = (seen(-ax, -ay), seen(0, 0)) {
-                    sides.push(hc - hb);
+                    sides.add(hc - hb);
                 }
                 if let (Some(h2), Some(h1m)) = (seen(2 * ax, 2 * ay), seen(ax, ay)) {
-                    sides.push(h2 - h1m);
+                    sides.add(h2 - h1m);
                 }
-                sides.retain(|d: &f64| d.abs() <= side_limit);
-                if sides.is_empty() {
+                let Some(slope) = sides.mean() else {
                     continue;
-                }
-                let slope = sides.iter().sum::<f64>() / sides.len() as f64;
+                };
                 if (jump - slope).abs() > self.max_step_m {
                     return Verdict::Step;
                 }
@@ -251,18 +276,16 @@ impl Rules {
             };
             // Only smooth sides give the slope: one that jumps by a step is that step.
             let side_limit = self.max_step_m;
-            let mut sides = Vec::with_capacity(2);
+            let mut sides = Sides::new(side_limit);
             if let Some(h) = seen(-2 * ux, -2 * uy) {
-                sides.push(lo - h);
+                sides.add(lo - h);
             }
             if let Some(h) = seen(2 * ux, 2 * uy) {
-                sides.push(h - hi);
+                sides.add(h - hi);
             }
-            sides.retain(|d: &f64| d.abs() <= side_limit);
-            if sides.is_empty() {
+            let Some(slope) = sides.mean() else {
                 continue;
-            }
-            let slope = sides.iter().sum::<f64>() / sides.len() as f64;
+            };
             if (hi - lo - 2.0 * slope).abs() > self.max_step_m {
                 return Verdict::Step;
             }

@@ -318,6 +318,19 @@ impl CellData {
         self.cur.merged(&self.prev)
     }
 
+    /// The cell's ground: its lowest return when it has evidence enough, else where the robot
+    /// drove over it, else infinity (unknown).
+    fn ground(&self, min_n: u32) -> f32 {
+        let e = self.evidence();
+        if e.n >= min_n {
+            e.zmin
+        } else if self.driven {
+            self.driven_z
+        } else {
+            f32::INFINITY
+        }
+    }
+
     /// Whether the robot's proof that it drove here still holds: it does unless the current
     /// evidence shows something standing on the driven ground (a car parked, a tree fallen on
     /// a taught route since), which only observation can judge.
@@ -332,6 +345,10 @@ impl CellData {
 struct TileSlot {
     index: TileIndex,
     data: Vec<CellData>,
+    /// Each cell's ground ([`CellData::ground`]), kept beside the data: the beam march and the
+    /// ceilings look it up for tens of thousands of cells per sweep, and 4 bytes a cell stay in
+    /// cache where the whole cell does not.
+    ground: Vec<f32>,
     /// The current output cells.
     live: Vec<Cell>,
     /// The last published tile (version and cells).
@@ -848,6 +865,7 @@ impl Mapper {
             }
             d.stamp_s = stamp;
             if changed {
+                self.refresh_ground(cx, cy);
                 dirty.push((cx, cy));
             }
         }
@@ -861,6 +879,7 @@ impl Mapper {
                 d.driven = true;
                 d.driven_z = robot.z_m as f32;
                 d.stamp_s = stamp;
+                self.refresh_ground(cx, cy);
                 dirty.push((cx, cy));
             }
         }
@@ -909,6 +928,7 @@ impl Mapper {
         let n = self.lattice.tile_cells as i64;
         let l = self.cfg.grid_size_m;
         let r2 = radius_m * radius_m;
+        let min_n = self.rules.min_points();
         let mut moved = 0;
         for slot in &mut self.slots {
             let (x0, y0) = (i64::from(slot.index.tx) * n, i64::from(slot.index.ty) * n);
@@ -943,6 +963,7 @@ impl Mapper {
                 if d.driven {
                     d.driven_z += dz as f32;
                 }
+                slot.ground[i] = d.ground(min_n);
                 moved += 1;
             }
         }
@@ -989,7 +1010,6 @@ impl Mapper {
             f64::from(high) + FAR_TERRAIN_SLACK_M,
         );
         let stride = self.cfg.beam_stride.max(1);
-        let min_n = self.rules.min_points();
         let mut marched = 0usize;
         let side = self.win.side;
         let (ux0, uy0) = (
@@ -1046,16 +1066,8 @@ impl Mapper {
                 last = i;
                 if self.win.pass[i].g.is_nan() {
                     // First visit this sweep: the cell's ground, or infinity when unknown.
-                    let mut g = self.win.zmin[i];
                     let (cx, cy) = self.win.global(i);
-                    if let Some(dd) = self.data(cx, cy) {
-                        let e = dd.evidence();
-                        if e.n >= min_n {
-                            g = g.min(e.zmin);
-                        } else if dd.driven {
-                            g = g.min(dd.driven_z);
-                        }
-                    }
+                    let g = self.win.zmin[i].min(self.ground(cx, cy));
                     self.win.pass[i].g = g;
                     self.win.pass_touched.push(i);
                 }
@@ -1128,6 +1140,7 @@ impl Mapper {
                     d.class_range_m = f32::INFINITY;
                     d.far_wiped = far;
                     rep.cleared_cells += 1;
+                    self.refresh_ground(cx, cy);
                 }
                 dirty.push((cx, cy));
             }
@@ -1161,7 +1174,6 @@ impl Mapper {
         let l = self.cfg.grid_size_m as f32;
         let h_r = self.cfg.h_r_m as f32;
         let side = self.win.side as i64;
-        let min_n = self.rules.min_points();
         let mut looked_up: Vec<usize> = Vec::new();
         // The climb allowance per offset, once.
         let span = (2 * r + 1) as usize;
@@ -1190,11 +1202,7 @@ impl Mapper {
                     let mut sg = self.win.stored_ground[j];
                     if sg.is_nan() {
                         let (cx, cy) = self.win.global(j);
-                        sg = match self.data(cx, cy) {
-                            Some(d) if d.evidence().n >= min_n => d.evidence().zmin,
-                            Some(d) if d.driven => d.driven_z,
-                            _ => f32::INFINITY,
-                        };
+                        sg = self.ground(cx, cy);
                         self.win.stored_ground[j] = sg;
                         looked_up.push(j);
                     }
@@ -1458,12 +1466,36 @@ impl Mapper {
                 }
             }
         } else {
+            // Around each changed cell, which cells within twice the cost distance are sources,
+            // looked up once: every output cell of the block finds its nearest source in that
+            // map instead of looking up its own disc of neighbours.
+            let w = 4 * rc + 1;
+            let at = |x: i64, y: i64| ((y + 2 * rc) * w + x + 2 * rc) as usize;
+            let mut src = vec![false; (w * w) as usize];
             for &(cx, cy) in &changed {
+                for dy in -2 * rc..=2 * rc {
+                    for dx in -2 * rc..=2 * rc {
+                        src[at(dx, dy)] = self
+                            .data(cx + dx, cy + dy)
+                            .is_some_and(|n| self.is_source(n.class));
+                    }
+                }
                 for dy in -rc..=rc {
                     for dx in -rc..=rc {
-                        if self.data(cx + dx, cy + dy).is_some() {
-                            mark(&mut self.win, cx + dx, cy + dy, &mut out_cells);
+                        let (ox, oy) = (cx + dx, cy + dy);
+                        if self.data(ox, oy).is_none() {
+                            continue;
                         }
+                        let Some(i) = self.win.local(ox, oy) else {
+                            continue;
+                        };
+                        if self.win.mark[i] == g {
+                            continue;
+                        }
+                        self.win.mark[i] = g;
+                        let near = self.inflation_from(|ex, ey| src[at(dx + ex, dy + ey)]);
+                        let cell = self.output_cell(ox, oy, Some(near));
+                        self.write_live(ox, oy, cell);
                     }
                 }
             }
@@ -1496,8 +1528,8 @@ impl Mapper {
     }
 
     /// The final cell: state and cost from the class and the nearest inflation source. `kept`:
-    /// the state and cost the cell showed, reused for a traversable cell when no source near it
-    /// changed since.
+    /// the state and cost a traversable cell is to show, known already (no source near it
+    /// changed since it was computed, or its nearest source was found another way).
     fn output_cell(&self, cx: i64, cy: i64, kept: Option<(CellState, u8)>) -> Cell {
         let Some(d) = self.data(cx, cy) else {
             return Cell::UNKNOWN;
@@ -1535,10 +1567,16 @@ impl Mapper {
 
     /// State and cost of a traversable cell from the nearest inflation source around it.
     fn inflation(&self, cx: i64, cy: i64) -> (CellState, u8) {
-        let near = self.offsets.iter().find(|(_, dx, dy)| {
+        self.inflation_from(|dx, dy| {
             self.data(cx + dx, cy + dy)
                 .is_some_and(|n| self.is_source(n.class))
-        });
+        })
+    }
+
+    /// [`Self::inflation`] with `source(dx, dy)` telling whether the cell at that offset is an
+    /// inflation source.
+    fn inflation_from(&self, source: impl Fn(i64, i64) -> bool) -> (CellState, u8) {
+        let near = self.offsets.iter().find(|(_, dx, dy)| source(*dx, *dy));
         match near {
             Some((dist, _, _)) if *dist <= self.cfg.obstacle_distance_m + 1e-9 => {
                 (CellState::Inflated, 254)
@@ -1833,6 +1871,29 @@ impl Mapper {
         }
     }
 
+    /// A cell's stored ground ([`CellData::ground`]); infinity where nothing is stored.
+    #[inline]
+    fn ground(&self, cx: i64, cy: i64) -> f32 {
+        let (t, (c, r)) = self.lattice.tile_of_cell(cx, cy);
+        match self.slot(t) {
+            Some(s) => {
+                self.slots[s].ground[r as usize * self.lattice.tile_cells as usize + c as usize]
+            }
+            None => f32::INFINITY,
+        }
+    }
+
+    /// Brings a cell's stored ground up to date after its evidence or driven height changed.
+    fn refresh_ground(&mut self, cx: i64, cy: i64) {
+        let min_n = self.rules.min_points();
+        let (t, (c, r)) = self.lattice.tile_of_cell(cx, cy);
+        if let Some(s) = self.slot(t) {
+            let k = r as usize * self.lattice.tile_cells as usize + c as usize;
+            let slot = &mut self.slots[s];
+            slot.ground[k] = slot.data[k].ground(min_n);
+        }
+    }
+
     fn data(&self, cx: i64, cy: i64) -> Option<&CellData> {
         let (t, (c, r)) = self.lattice.tile_of_cell(cx, cy);
         let s = self.slot(t)?;
@@ -1876,6 +1937,7 @@ impl Mapper {
                 self.slots.push(TileSlot {
                     index: t,
                     data: vec![CellData::default(); n * n],
+                    ground: vec![f32::INFINITY; n * n],
                     live: vec![Cell::UNKNOWN; n * n],
                     published: Tile::new(t, self.lattice),
                     changed: false,
