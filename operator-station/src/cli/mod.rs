@@ -367,7 +367,30 @@ impl Drop for Children {
     }
 }
 
-/// Station plus simulated robots until Ctrl-C.
+/// Resolves on Ctrl-C, and on Unix on SIGTERM or SIGHUP too (a `kill`, a closed terminal), so
+/// the demo stops its robots the same way for each.
+async fn stop_signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        let (Ok(mut term), Ok(mut hup)) = (
+            signal(SignalKind::terminate()),
+            signal(SignalKind::hangup()),
+        ) else {
+            let _ = tokio::signal::ctrl_c().await;
+            return;
+        };
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => {}
+            _ = term.recv() => {}
+            _ = hup.recv() => {}
+        }
+    }
+    #[cfg(not(unix))]
+    let _ = tokio::signal::ctrl_c().await;
+}
+
+/// Station plus simulated robots until Ctrl-C (or SIGTERM / SIGHUP).
 pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
     let addr = http_addr(None, a.port, None)?;
     let zport = if a.zenoh_port == 0 {
@@ -420,6 +443,9 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
                 &i.to_string(),
             ])
             .arg(format!("--start={start}"))
+            // A station killed outright (SIGKILL, out of memory) never runs `Children`'s drop;
+            // its robots would go on simulating and publishing with nobody to stop them.
+            .arg("--exit-with-parent")
             .stdin(Stdio::null())
             .spawn()
             .with_context(|| {
@@ -432,9 +458,11 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
     }
     println!("terranav demo: open http://{addr}/  ({} simulated robots, zenoh {endpoint}; Ctrl-C to stop)", a.robots);
     let mut tick = tokio::time::interval(Duration::from_millis(500));
+    let stop = stop_signal();
+    tokio::pin!(stop);
     loop {
         tokio::select! {
-            _ = tokio::signal::ctrl_c() => break,
+            _ = &mut stop => break,
             _ = tick.tick() => {
                 for (i, c) in children.0.iter_mut().enumerate() {
                     if let Ok(Some(status)) = c.try_wait() {

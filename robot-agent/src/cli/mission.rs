@@ -10,7 +10,7 @@ use common::geom::Pose2;
 use common::keys::RobotId;
 use common::msg::GoalTarget;
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 /// Mission flags, flattened into `robot-agent sim`.
@@ -37,6 +37,10 @@ pub struct MissionArgs {
     /// Zenoh json5 config file (live mode).
     #[arg(long, value_name = "FILE")]
     pub zenoh: Option<PathBuf>,
+    /// Live mode: stop when the process that started this one exits (how `operator-station
+    /// demo` keeps its simulated robots from outliving it when it is killed outright).
+    #[arg(long)]
+    pub exit_with_parent: bool,
     /// Folder with robot.toml, slam.toml, mapper.toml, planner.toml, control.toml, mission.toml.
     #[arg(long, value_name = "DIR")]
     pub config_dir: Option<PathBuf>,
@@ -174,5 +178,27 @@ pub fn run_live(
         };
     }
     let stop = Arc::new(AtomicBool::new(false));
+    if args.exit_with_parent {
+        watch_parent(stop.clone());
+    }
     run::live::run_live(scenario, scenario_name, cfg, robot, bus, &opts, stop)
+}
+
+/// Raises `stop` once this process's parent has exited (Unix: the process is handed to another
+/// parent then). Checked twice a second on its own thread.
+fn watch_parent(stop: Arc<AtomicBool>) {
+    #[cfg(unix)]
+    {
+        let parent = std::os::unix::process::parent_id();
+        std::thread::spawn(move || loop {
+            std::thread::sleep(std::time::Duration::from_millis(500));
+            if std::os::unix::process::parent_id() != parent {
+                tracing::warn!("parent process {parent} exited: stopping");
+                stop.store(true, Ordering::Relaxed);
+                return;
+            }
+        });
+    }
+    #[cfg(not(unix))]
+    let _ = stop;
 }
