@@ -1440,6 +1440,7 @@ impl Mapper {
             }
         }
 
+        // Negative obstacles (step 6b).
         changed.extend(self.negative_obstacles(robot));
         self.win.end_stats();
         rep.class_changes = changed.len();
@@ -1516,8 +1517,8 @@ impl Mapper {
                     continue;
                 }
                 self.win.mark[i] = g;
-                let kept = self.live_cell(cx, cy).map(|c| (c.state, c.cost));
-                let cell = self.output_cell(cx, cy, kept);
+                let shown = self.cell(cx, cy);
+                let cell = self.output_cell(cx, cy, Some((shown.state, shown.cost)));
                 self.write_live(cx, cy, cell);
             }
         }
@@ -1588,14 +1589,6 @@ impl Mapper {
             }
             None => (CellState::Traversable, 0),
         }
-    }
-
-    /// The output cell currently held for a global cell.
-    fn live_cell(&self, cx: i64, cy: i64) -> Option<Cell> {
-        let (t, (c, r)) = self.lattice.tile_of_cell(cx, cy);
-        let s = self.slot(t)?;
-        let n = self.lattice.tile_cells as usize;
-        Some(self.slots[s].live[r as usize * n + c as usize])
     }
 
     fn write_live(&mut self, cx: i64, cy: i64, cell: Cell) {
