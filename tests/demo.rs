@@ -102,10 +102,18 @@ fn gone_within(pid: u32, limit: Duration) -> bool {
     !running(pid)
 }
 
+/// Whether `/proc` is there to find processes by (with a printed notice when not).
+fn have_proc() -> bool {
+    let ok = std::path::Path::new("/proc/self/stat").exists();
+    if !ok {
+        println!("skipping: no /proc");
+    }
+    ok
+}
+
 #[test]
 fn a_killed_demo_leaves_no_robot_running() {
-    if !std::path::Path::new("/proc/self/stat").exists() {
-        println!("skipping: no /proc");
+    if !have_proc() {
         return;
     }
     let (mut demo, robot) = start_demo();
@@ -120,8 +128,7 @@ fn a_killed_demo_leaves_no_robot_running() {
 
 #[test]
 fn a_terminated_demo_stops_its_robots_and_exits_cleanly() {
-    if !std::path::Path::new("/proc/self/stat").exists() {
-        println!("skipping: no /proc");
+    if !have_proc() {
         return;
     }
     let (mut demo, robot) = start_demo();
