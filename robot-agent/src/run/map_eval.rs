@@ -121,6 +121,8 @@ pub struct MapEvalReport {
     pub slam_mean_tilt_error_deg: f64,
     /// Collisions of the scripted drive (the drive should have none).
     pub collisions: usize,
+    /// [`common::grid::map_digest`] of the final map: equal digests, equal maps.
+    pub map_digest: String,
     /// Wrong cells by kind: missed obstacles by truth reason, false obstacles by mapper class.
     pub errors: ErrorCounts,
     /// The wrong cells themselves (global lattice index, kind), for drawing.
@@ -317,6 +319,7 @@ pub fn run(
         &walker_trace,
         &mut rep,
     );
+    rep.map_digest = common::grid::map_digest(&mapper.tiles());
     Ok((rep, mapper))
 }
 

@@ -81,6 +81,8 @@ pub struct MissionReport {
     pub localisation: LocalisationError,
     /// Truth trajectory, decimated to 0.5 m, for scenario checks.
     pub trajectory_m: Vec<(f64, f64)>,
+    /// [`common::grid::map_digest`] of the robot's map at the end.
+    pub map_digest: String,
 }
 
 /// Timing statistics.
@@ -426,6 +428,7 @@ pub fn run_goal_rig(
         slam_failures: rig.agent.status(rig.t_s()).slam.failures,
         localisation: rig.loc,
         trajectory_m: rig.trajectory.clone(),
+        map_digest: common::grid::map_digest(&rig.agent.all_tiles()),
     };
     Ok((report, rig))
 }
@@ -464,6 +467,8 @@ pub struct TeachRepeatReport {
     pub time_s: f64,
     /// Sweeps (teach and return) left out of the map because SLAM's pose was thrown off.
     pub scans_not_mapped: u64,
+    /// [`common::grid::map_digest`] of the robot's map at the end.
+    pub map_digest: String,
 }
 
 /// Teach along the scenario's teach path by teleop, add obstacles, return home along the route.
@@ -731,6 +736,7 @@ pub fn run_teach_repeat(
         route_length_m,
         time_s: rig.t_s() - t_start,
         scans_not_mapped: rig.agent.scans_not_mapped(),
+        map_digest: common::grid::map_digest(&rig.agent.all_tiles()),
     })
 }
 
