@@ -891,7 +891,7 @@ fn commands_from_the_api_reach_the_robot_validated() {
     obs.put(&keys::key(&r, Topic::CmdStop), b);
     let c = bus.recv_timeout(LIMIT).expect("refusal delivered");
     assert!(
-        matches!(&c, BusCommand::Refused { reason } if reason.contains("schema")),
+        matches!(&c, BusCommand::Refused(r) if r.message.contains("schema")),
         "{c:?}"
     );
     assert_eq!(bus.counters().commands_refused, 1);

@@ -1,10 +1,12 @@
-//! terranav robot agent: wires sensing, SLAM, mapping, planning and control into missions, and
-//! connects the robot to operator stations over Zenoh.
+//! terranav robot agent: the runtime around the robot's brain ([`agent`], its own crate): the
+//! configuration files, the Zenoh bus, the built-in simulator as a robot, and the tools.
 //!
-//! The algorithms are separate crates under `robot-agent/` (re-exported here) so they cannot
-//! reach Zenoh, tokio or the clock; [`bus`] is the only module that touches the network.
+//! The algorithms and the agent's parts are separate crates under `robot-agent/` (re-exported
+//! here) so they cannot reach Zenoh, tokio or the clock; [`bus`] is the only module that touches
+//! the network.
 #![deny(missing_docs)]
 
+pub use agent;
 pub use control;
 pub use mapping;
 pub use planning;
@@ -12,8 +14,8 @@ pub use sensing;
 pub use sim;
 pub use slam;
 
-pub mod agent;
 pub mod bus;
 pub mod cli;
-pub mod mission;
+pub mod config;
+pub mod navcomp;
 pub mod run;

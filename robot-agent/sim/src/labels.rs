@@ -24,9 +24,9 @@
 //! inflation to `Inflated`) are what these compare with; the footprint enters through inflation.
 //! Platform drop-offs are steps (their edge jump exceeds `max_step_m`).
 
-use crate::robot::RobotProfile;
 use crate::world::{Obb, World, FLAG_HOLE};
 use common::grid::{CellState, Lattice};
+use common::robot::RobotProfile;
 
 /// Reason bit: a step of `max_step_m` or more at or inside the cell.
 pub const REASON_STEP: u8 = 1;

@@ -2,7 +2,6 @@
 //! casting, differential-drive plant, odometry and GNSS.
 //!
 //! - [`scenario`]: the scenario TOML schema (`config/scenarios/*.toml`).
-//! - [`robot`]: the robot profile (`config/robot.toml`, Husky A200 defaults).
 //! - [`world`]: ground height field, solids, walkers, ray casting.
 //! - [`labels`]: ground-truth traversability labels on a [`common::grid::Lattice`].
 //! - [`plant`]: differential drive with limits, terrain following, collisions.
@@ -19,7 +18,6 @@ pub mod labels;
 pub mod plant;
 pub mod record;
 pub mod render;
-pub mod robot;
 pub mod scenario;
 pub mod sensors;
 pub mod simulation;
@@ -27,7 +25,6 @@ pub mod world;
 
 pub use labels::{LabelParams, TruthCell, TruthGrid};
 pub use plant::{Collision, CollisionKind};
-pub use robot::RobotProfile;
 pub use scenario::{Scenario, ScenarioError};
 pub use sensors::{DepthConfig, GnssConfig, GnssFix, ImuConfig, LidarConfig, OdomConfig};
 pub use simulation::{SimConfig, Simulation, StepOutput};

@@ -7,9 +7,9 @@
 //! the tilt exceeds `max_slope_deg` + 2 deg (`TooSteep`), or the footprint leaves the world.
 //! Every contact is reported once when it begins (edge-triggered per kind and object) and counted.
 
-use crate::robot::RobotProfile;
 use crate::world::{Obb, WalkerState, World};
 use common::geom::Pose2;
+use common::robot::RobotProfile;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 
 /// What the robot ran into.

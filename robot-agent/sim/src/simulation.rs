@@ -1,7 +1,6 @@
 //! One simulated robot in a world: plant plus sensors, stepped by the caller.
 
 use crate::plant::{Collision, Plant};
-use crate::robot::RobotProfile;
 use crate::scenario::Scenario;
 use crate::sensors::{
     depth_frame, DepthConfig, Gnss, GnssConfig, GnssFix, Imu, ImuConfig, Lidar, LidarConfig,
@@ -9,6 +8,7 @@ use crate::sensors::{
 };
 use crate::world::{Obstacle, Solid, WalkerState, World};
 use common::geom::Pose2;
+use common::robot::RobotProfile;
 use nalgebra::Isometry3;
 use rand::rngs::SmallRng;
 use rand::SeedableRng;

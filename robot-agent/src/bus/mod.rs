@@ -8,6 +8,7 @@
 //! [`Command::Refused`] with the reason, so the agent can put it in its status.
 
 pub mod orpheus;
+pub mod translate;
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -15,11 +16,11 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use common::command::{self, Refusal, RefusalCode, RobotContext};
 use common::grid::TileIndex;
 use common::keys::{self, RobotId, Topic};
 use common::msg::{
-    self, DriveCmd, GoalCmd, GoalTarget, Path, Pose, Route, RouteCmd, Session, SpeedCmd, Status,
-    StopCmd,
+    self, DriveCmd, GoalCmd, Path, Pose, Route, RouteCmd, Session, SpeedCmd, Status, StopCmd,
 };
 use tokio::sync::mpsc;
 use zenoh::qos::CongestionControl;
@@ -157,26 +158,7 @@ pub fn apply_terranav_defaults(c: &mut zenoh::Config) -> Result<(), BusError> {
     Ok(())
 }
 
-/// Limits used to validate commands.
-#[derive(Clone, Copy, Debug)]
-pub struct CommandLimits {
-    /// Largest accepted |v| of a drive command, m/s.
-    pub max_speed_mps: f32,
-    /// Largest accepted |omega| of a drive command, rad/s.
-    pub max_omega_rps: f32,
-    /// Largest accepted distance of a map goal from the origin, metres.
-    pub max_goal_range_m: f64,
-}
-
-impl Default for CommandLimits {
-    fn default() -> Self {
-        Self {
-            max_speed_mps: 2.0,
-            max_omega_rps: 2.0,
-            max_goal_range_m: 100_000.0,
-        }
-    }
-}
+pub use common::command::CommandLimits;
 
 /// Everything [`RobotBus::open`] needs.
 #[derive(Clone, Debug)]
@@ -213,11 +195,8 @@ pub enum Command {
     Stop(StopCmd),
     /// Speed limit.
     Speed(SpeedCmd),
-    /// A command that was refused (already counted); put `reason` in the status.
-    Refused {
-        /// Human-readable reason, prefixed with the command kind, e.g. `goal: latitude out of range`.
-        reason: String,
-    },
+    /// A command that was refused (already counted by the bus); show it in the status.
+    Refused(Refusal),
 }
 
 /// Counters of the bus, for the status message.
@@ -240,6 +219,8 @@ struct Served {
 struct Shared {
     robot: RobotId,
     limits: CommandLimits,
+    /// What the robot knows about itself, for the goal checks (kept fresh by the loop).
+    context: Mutex<RobotContext>,
     served: Mutex<Served>,
     refused: AtomicU32,
     decode_errors: AtomicU32,
@@ -260,94 +241,16 @@ pub struct RobotBus {
     tasks: Vec<tokio::task::JoinHandle<()>>,
 }
 
-fn ok_f64(v: f64) -> bool {
-    v.is_finite()
-}
-
-/// Validates a decoded command against the limits; `Err` is the refusal reason.
-pub fn validate(cmd: &Command, limits: &CommandLimits) -> Result<(), String> {
+/// Checks a decoded command against the contract (`common::command`), with what the robot
+/// knows about itself (`ctx`: its position and mapped area, for goals that are too far).
+pub fn validate(cmd: &Command, limits: &CommandLimits, ctx: &RobotContext) -> Result<(), Refusal> {
     match cmd {
-        Command::Goal(g) => {
-            if !(g.tolerance_m.is_finite() && (0.0..=100.0).contains(&g.tolerance_m)) {
-                return Err(format!(
-                    "goal: tolerance {} m out of range 0-100",
-                    g.tolerance_m
-                ));
-            }
-            match g.target {
-                GoalTarget::Map { x_m, y_m } => {
-                    if !(ok_f64(x_m) && ok_f64(y_m)) {
-                        return Err("goal: coordinates are not finite".into());
-                    }
-                    if x_m.hypot(y_m) > limits.max_goal_range_m {
-                        return Err(format!(
-                            "goal: ({x_m:.1}, {y_m:.1}) is beyond {} m of the map origin",
-                            limits.max_goal_range_m
-                        ));
-                    }
-                }
-                GoalTarget::Gnss {
-                    lat_deg,
-                    lon_deg,
-                    h_m,
-                } => {
-                    if !(ok_f64(lat_deg) && (-90.0..=90.0).contains(&lat_deg)) {
-                        return Err(format!("goal: latitude {lat_deg} out of range"));
-                    }
-                    if !(ok_f64(lon_deg) && (-180.0..=180.0).contains(&lon_deg)) {
-                        return Err(format!("goal: longitude {lon_deg} out of range"));
-                    }
-                    if let Some(h) = h_m {
-                        if !(ok_f64(h) && (-1000.0..=10_000.0).contains(&h)) {
-                            return Err(format!("goal: height {h} m out of range"));
-                        }
-                    }
-                }
-            }
-        }
-        Command::Drive(d) => {
-            if !(d.v_mps.is_finite() && d.v_mps.abs() <= limits.max_speed_mps) {
-                return Err(format!(
-                    "drive: speed {} m/s beyond the limit {} m/s",
-                    d.v_mps, limits.max_speed_mps
-                ));
-            }
-            if !(d.omega_rps.is_finite() && d.omega_rps.abs() <= limits.max_omega_rps) {
-                return Err(format!(
-                    "drive: turn rate {} rad/s beyond the limit {} rad/s",
-                    d.omega_rps, limits.max_omega_rps
-                ));
-            }
-        }
-        Command::Speed(s) => {
-            if !(s.limit_mps.is_finite() && s.limit_mps > 0.0) {
-                return Err(format!("speed: limit {} m/s must be positive", s.limit_mps));
-            }
-        }
-        Command::Route(r) => match r {
-            RouteCmd::Record { name } if (name.trim().is_empty() || name.len() > 200) => {
-                return Err("route: name must have 1-200 characters".into());
-            }
-            RouteCmd::Repeat { route, .. } => {
-                if route.points.is_empty() {
-                    return Err(format!("route: route {} has no points", route.route_id));
-                }
-                if route
-                    .points
-                    .iter()
-                    .any(|p| !(ok_f64(p.x_m) && ok_f64(p.y_m) && p.yaw_rad.is_finite()))
-                {
-                    return Err(format!(
-                        "route: route {} has non-finite points",
-                        route.route_id
-                    ));
-                }
-            }
-            _ => {}
-        },
-        Command::Stop(_) | Command::Refused { .. } => {}
+        Command::Goal(g) => command::check_goal(g, limits, ctx),
+        Command::Drive(d) => command::check_drive(d, limits),
+        Command::Speed(s) => command::check_speed(s),
+        Command::Route(r) => command::check_route(r),
+        Command::Stop(_) | Command::Refused(_) => Ok(()),
     }
-    Ok(())
 }
 
 /// Decodes and validates one command payload on `key`. `None` when the key is not a command of
@@ -357,6 +260,7 @@ pub fn parse_command(
     key: &str,
     payload: &[u8],
     limits: &CommandLimits,
+    ctx: &RobotContext,
 ) -> Option<(Command, bool)> {
     let (rid, topic) = keys::parse(key).ok()?;
     if &rid != robot || !topic.is_command() {
@@ -366,10 +270,10 @@ pub fn parse_command(
         kind: &str,
         b: &[u8],
         f: fn(T) -> Command,
-    ) -> Result<Command, String> {
+    ) -> Result<Command, Refusal> {
         msg::decode::<T>(b)
             .map(f)
-            .map_err(|e| format!("{kind}: {e}"))
+            .map_err(|e| Refusal::new(RefusalCode::Undecodable, format!("{kind}: {e}")))
     }
     let decoded = match topic {
         Topic::CmdGoal => dec("goal", payload, Command::Goal),
@@ -381,11 +285,11 @@ pub fn parse_command(
     };
     // The bool says whether the failure was a decode error (counted separately from refusals).
     Some(match decoded {
-        Ok(cmd) => match validate(&cmd, limits) {
+        Ok(cmd) => match validate(&cmd, limits, ctx) {
             Ok(()) => (cmd, false),
-            Err(reason) => (Command::Refused { reason }, false),
+            Err(r) => (Command::Refused(r), false),
         },
-        Err(reason) => (Command::Refused { reason }, true),
+        Err(r) => (Command::Refused(r), true),
     })
 }
 
@@ -409,6 +313,7 @@ impl RobotBus {
         let shared = Arc::new(Shared {
             robot: robot.clone(),
             limits: config.limits,
+            context: Mutex::new(RobotContext::default()),
             served: Mutex::new(Served::default()),
             refused: AtomicU32::new(0),
             decode_errors: AtomicU32::new(0),
@@ -427,19 +332,20 @@ impl RobotBus {
                 while let Ok(sample) = sub.recv_async().await {
                     let key = sample.key_expr().as_str().to_string();
                     let payload = sample.payload().to_bytes();
+                    let ctx = *shared.context.lock().unwrap_or_else(|p| p.into_inner());
                     let Some((cmd, decode_error)) =
-                        parse_command(&shared.robot, &key, &payload, &shared.limits)
+                        parse_command(&shared.robot, &key, &payload, &shared.limits, &ctx)
                     else {
                         continue;
                     };
                     let cmd = match cmd {
-                        Command::Refused { reason } => {
+                        Command::Refused(r) => {
                             if decode_error {
                                 shared.decode_errors.fetch_add(1, Ordering::Relaxed);
                             }
                             shared.refused.fetch_add(1, Ordering::Relaxed);
-                            tracing::warn!(key, reason, "command refused");
-                            Command::Refused { reason }
+                            tracing::warn!(key, %r, "command refused");
+                            Command::Refused(r)
                         }
                         Command::Drive(d) => {
                             let now = Instant::now();
@@ -781,6 +687,15 @@ impl BusHandle {
         self.send(Out::ClearTiles);
     }
 
+    /// Tells the command checks where the robot is and what it has mapped.
+    pub fn set_context(&self, ctx: RobotContext) {
+        *self
+            .shared
+            .context
+            .lock()
+            .unwrap_or_else(|p| p.into_inner()) = ctx;
+    }
+
     /// The next command, if any (validated, or `Refused`).
     pub fn try_recv(&self) -> Option<Command> {
         self.commands.try_recv().ok()
@@ -841,13 +756,20 @@ impl Drop for BusHandle {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use common::msg::GoalTarget;
 
     fn rid() -> RobotId {
         RobotId::new("husky-1").unwrap()
     }
 
     fn parse(key: &str, b: &[u8]) -> Option<(Command, bool)> {
-        parse_command(&rid(), key, b, &CommandLimits::default())
+        parse_command(
+            &rid(),
+            key,
+            b,
+            &CommandLimits::default(),
+            &RobotContext::default(),
+        )
     }
 
     #[test]
@@ -881,7 +803,7 @@ mod tests {
         };
         let (c, de) = parse("terranav/husky-1/cmd/goal", &msg::encode(&g)).unwrap();
         assert!(
-            matches!(c, Command::Refused { ref reason } if reason.contains("latitude")),
+            matches!(c, Command::Refused(ref r) if r.code == RefusalCode::LatitudeOutOfRange),
             "{c:?}"
         );
         assert!(!de);
@@ -892,7 +814,7 @@ mod tests {
             deadman: true,
         };
         let (c, _) = parse("terranav/husky-1/cmd/drive", &msg::encode(&d)).unwrap();
-        assert!(matches!(c, Command::Refused { .. }));
+        assert!(matches!(c, Command::Refused(_)));
         let d = DriveCmd {
             seq: 1,
             v_mps: 5.0,
@@ -900,16 +822,16 @@ mod tests {
             deadman: true,
         };
         let (c, _) = parse("terranav/husky-1/cmd/drive", &msg::encode(&d)).unwrap();
-        assert!(matches!(c, Command::Refused { ref reason } if reason.contains("speed")));
+        assert!(matches!(c, Command::Refused(ref r) if r.message.contains("speed")));
         // Schema 1, then a string that claims 9 bytes and has one invalid one.
         let (c, de) = parse("terranav/husky-1/cmd/stop", &[1, 9, 0xff]).unwrap();
-        assert!(matches!(c, Command::Refused { .. }));
+        assert!(matches!(c, Command::Refused(ref r) if r.code == RefusalCode::Undecodable));
         assert!(de);
         // Another schema version.
         let mut b = msg::encode(&StopCmd::default());
         b[0] = 7;
         let (c, de) = parse("terranav/husky-1/cmd/stop", &b).unwrap();
-        assert!(matches!(c, Command::Refused { ref reason } if reason.contains("schema")));
+        assert!(matches!(c, Command::Refused(ref r) if r.message.contains("schema")));
         assert!(de);
         // Another robot's or a non-command key is not ours.
         assert!(parse(

@@ -1,8 +1,8 @@
 //! The Orpheus navigation-computer gateway on a UDP socket (methods.md §7): sentences in, route
-//! edits out. The protocol logic is [`crate::mission::orpheus::OrpheusGateway`]; this is only
+//! edits out. The protocol logic is [`crate::navcomp::OrpheusGateway`]; this is only
 //! the socket.
 
-use crate::mission::orpheus::{GatewayError, GatewayEvent, OrpheusGateway};
+use crate::navcomp::{GatewayError, GatewayEvent, OrpheusGateway};
 use std::net::{SocketAddr, UdpSocket};
 
 /// The gateway's UDP endpoint.
@@ -81,7 +81,7 @@ impl OrpheusUdp {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mission::orpheus::ReferenceNavComputer;
+    use crate::navcomp::ReferenceNavComputer;
     use common::geo::orpheus::RoutePoint;
     use std::time::{Duration, Instant};
 

@@ -146,7 +146,7 @@ fn mapper_config(path: Option<&Path>) -> anyhow::Result<Config> {
     match path {
         Some(p) => load_config(Some(p)),
         None => {
-            let shipped = crate::agent::config::default_config_dir().join("mapper.toml");
+            let shipped = crate::config::default_config_dir().join("mapper.toml");
             if shipped.exists() {
                 load_config(Some(&shipped))
             } else {
@@ -163,8 +163,8 @@ fn eval_options(
     seed: u64,
 ) -> anyhow::Result<(sim::Scenario, map_eval::MapEvalOptions)> {
     let scenario = sim::Scenario::load(scenario)?;
-    let dir = crate::agent::config::default_config_dir();
-    let agent = crate::agent::AgentConfig::load_dir(&dir)
+    let dir = crate::config::default_config_dir();
+    let agent = crate::config::load_agent_config(&dir)
         .with_context(|| format!("loading {}", dir.display()))?;
     let opts = map_eval::MapEvalOptions {
         seed,

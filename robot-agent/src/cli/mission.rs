@@ -1,14 +1,14 @@
 //! The mission flags of `robot-agent sim`: headless goal missions, teach-and-repeat, and the live
 //! robot on the bus.
 
-use crate::agent::config::default_config_dir;
-use crate::agent::AgentConfig;
 use crate::bus::{BusConfig, ZenohSettings};
+use crate::config::{default_config_dir, load_agent_config};
 use crate::run::{self, HeadlessOptions};
+use agent::command::GoalTarget;
+use agent::AgentConfig;
 use anyhow::Context;
 use common::geom::Pose2;
 use common::keys::RobotId;
-use common::msg::GoalTarget;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -80,8 +80,7 @@ fn numbers(s: &str, what: &str, n: std::ops::RangeInclusive<usize>) -> anyhow::R
 
 fn agent_config(args: &MissionArgs) -> anyhow::Result<AgentConfig> {
     let dir = args.config_dir.clone().unwrap_or_else(default_config_dir);
-    AgentConfig::load_dir(&dir)
-        .with_context(|| format!("loading configuration from {}", dir.display()))
+    load_agent_config(&dir).with_context(|| format!("loading configuration from {}", dir.display()))
 }
 
 fn options(args: &MissionArgs, seed: u64) -> anyhow::Result<HeadlessOptions> {
@@ -131,7 +130,7 @@ pub fn run_headless(scenario: &sim::Scenario, args: &MissionArgs, seed: u64) -> 
                 v[0].abs() <= 90.0 && v[1].abs() <= 180.0,
                 "--goal-gnss: latitude/longitude out of range"
             );
-            GoalTarget::Gnss {
+            GoalTarget::Geodetic {
                 lat_deg: v[0],
                 lon_deg: v[1],
                 h_m: v.get(2).copied(),

@@ -1,10 +1,13 @@
 //! A simulated robot live on the Zenoh bus, in real time, until stopped.
 
 use super::{HeadlessOptions, Rig};
-use crate::agent::AgentConfig;
+use crate::bus::translate::{self, RuntimeCounters};
 use crate::bus::{BusConfig, BusHandle, Command};
+use agent::localiser::FrameKind;
+use agent::AgentConfig;
+use common::command::{BoundsM, RobotContext};
 use common::keys::RobotId;
-use common::msg::{MapFrame, Path, Session};
+use common::msg::{Path, Session};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -59,6 +62,7 @@ pub fn run_live(
         while let Some(cmd) = bus.try_recv() {
             apply(&mut rig, cmd);
         }
+        bus.set_context(context(&rig));
         let ev = rig.step();
         let t = rig.t_s();
         if ev.scan {
@@ -71,11 +75,11 @@ pub fn run_live(
             if let Some((frame, datum)) = rig.agent.map_frame() {
                 let lattice = rig.agent.lattice();
                 bus.publish_session(&Session {
-                    session_id: format!("{}-{}", robot, rig.agent.unix_ms(0.0)),
+                    session_id: rig.agent.identity().session_id.clone(),
                     robot: robot.to_string(),
                     start_unix_ms: rig.agent.unix_ms(0.0),
-                    frame,
-                    datum: if frame == MapFrame::EnuAtDatum {
+                    frame: translate::frame_to_wire(frame),
+                    datum: if frame == FrameKind::EnuAtDatum {
                         datum
                     } else {
                         None
@@ -92,25 +96,31 @@ pub fn run_live(
             stamps_to_unix(&mut tile, rig.agent.unix_ms(0.0));
             bus.publish_tile(tile.index, common::grid::encode_tile(&tile));
         }
-        if let Some(route) = rig.agent.take_recorded() {
-            bus.publish_route(&route);
+        if let Some(route) = rig.agent.take_taught_route() {
+            bus.publish_route(&translate::route_to_wire(&route));
         }
         if t >= next_pose {
             next_pose += POSE_PERIOD_S;
-            if let Some(p) = rig.agent.pose_msg(t, pose_seq) {
+            if let Some(p) = rig.agent.pose(t) {
+                bus.publish_pose(&translate::pose_to_wire(&p, rig.agent.unix_ms(t), pose_seq));
                 pose_seq += 1;
-                bus.publish_pose(&p);
             }
         }
-        let mut status = rig.agent.status(t);
-        let state = (status.mode, status.mission);
+        let agent_status = rig.agent.status(t);
+        let state = (agent_status.mode, agent_status.phase, agent_status.driving);
+        let status = translate::status_to_wire(
+            &agent_status,
+            rig.agent.unix_ms(t),
+            RuntimeCounters {
+                decode_errors: bus.counters().decode_errors,
+                collisions: rig.collisions,
+                scan_hz: scan_times.len() as f32 / 2.0,
+                plan_hz: 0.0,
+            },
+        );
         if t >= next_status || last_state != Some(state) {
             next_status = t + STATUS_PERIOD_S;
             last_state = Some(state);
-            let c = bus.counters();
-            status.collisions = rig.collisions;
-            status.decode_errors = c.decode_errors;
-            status.scan_hz = scan_times.len() as f32 / 2.0;
             bus.publish_status(&status);
         }
         let path = rig.agent.current_path();
@@ -128,31 +138,36 @@ pub fn run_live(
     Ok(())
 }
 
+/// Hands a command from the bus to the agent, stamped with the agent's clock.
 fn apply(rig: &mut Rig, cmd: Command) {
     let t = rig.t_s();
-    let a = &mut rig.agent;
-    let r = match cmd {
-        Command::Goal(g) => a.on_goal(&g).map(|_| ()),
-        Command::Route(r) => a.on_route(t, &r),
-        Command::Drive(d) => {
-            a.on_drive(t, &d);
-            Ok(())
+    match cmd {
+        Command::Refused(r) => rig.agent.note_refusal(&r),
+        cmd => {
+            if let Some(kind) = translate::command_to_agent(cmd) {
+                // A refusal is counted and logged by the agent.
+                let _ = rig.agent.on_command(agent::Command::at(t, kind));
+            }
         }
-        Command::Stop(s) => {
-            a.on_stop(&s.reason);
-            Ok(())
-        }
-        Command::Speed(s) => {
-            a.on_speed(f64::from(s.limit_mps));
-            Ok(())
-        }
-        Command::Refused { reason } => {
-            a.on_refused(&reason);
-            Ok(())
-        }
-    };
-    if let Err(e) = r {
-        tracing::warn!("command refused: {e}");
+    }
+}
+
+/// What the bus's command checks should know about the robot now.
+fn context(rig: &Rig) -> RobotContext {
+    let pose = rig.agent.pose(rig.t_s());
+    let lattice = rig.agent.lattice();
+    let s = lattice.cell_size_f64();
+    RobotContext {
+        position_m: pose.map(|p| (p.pose.planar.x_m, p.pose.planar.y_m)),
+        lat_lon_deg: pose.and_then(|p| p.lla.map(|l| (l.0, l.1))),
+        mapped: rig
+            .agent
+            .mapper()
+            .bounds()
+            .map(|((x0, y0), (x1, y1))| BoundsM {
+                min_m: (x0 as f64 * s, y0 as f64 * s),
+                max_m: ((x1 + 1) as f64 * s, (y1 + 1) as f64 * s),
+            }),
     }
 }
 

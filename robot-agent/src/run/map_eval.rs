@@ -26,7 +26,7 @@ pub struct MapEvalOptions {
     /// SLAM parameters (when not using truth poses).
     pub slam: slam::Config,
     /// Robot profile of the simulated robot (and of the truth labels).
-    pub profile: sim::RobotProfile,
+    pub profile: common::robot::RobotProfile,
     /// Ignore truth cells within this distance of where any walker went: the cells walkers
     /// crossed are scored separately (`walker_cells`, `walker_false_obstacles`).
     pub walker_margin_m: f64,
@@ -43,7 +43,7 @@ impl Default for MapEvalOptions {
             max_duration_s: 1200.0,
             mapper: mapping::Config::default(),
             slam: slam::Config::default(),
-            profile: sim::RobotProfile::default(),
+            profile: common::robot::RobotProfile::default(),
             walker_margin_m: 0.0,
             tiles_out: None,
         }

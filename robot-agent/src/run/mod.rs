@@ -7,9 +7,10 @@
 pub mod live;
 pub mod map_eval;
 
-use crate::agent::{Agent, AgentConfig, Cmd};
+use agent::command::{Command, CommandKind, Direction, GoalTarget};
+use agent::mission::{Mode, Phase};
+use agent::{Agent, AgentConfig, Cmd, Identity};
 use common::geom::Pose2;
-use common::msg::{GoalCmd, GoalTarget, MissionState, Mode, RouteCmd, RouteDirection};
 use serde::Serialize;
 use std::time::Instant;
 
@@ -150,8 +151,15 @@ impl Rig {
             .duration_since(std::time::UNIX_EPOCH)
             .map(|d| d.as_millis() as u64)
             .unwrap_or(0);
-        let session = format!("{robot}-{now_ms}");
-        let agent = Agent::new(cfg, robot, &session, now_ms).map_err(anyhow::Error::msg)?;
+        let agent = Agent::new(
+            cfg,
+            Identity {
+                robot: robot.to_string(),
+                session_id: format!("{robot}-{now_ms}"),
+                start_unix_ms: now_ms,
+            },
+        )
+        .map_err(|e| anyhow::anyhow!("mapper configuration: {e}"))?;
         let t = sim.truth_pose().translation.vector;
         Ok(Self {
             sim,
@@ -215,7 +223,7 @@ impl Rig {
             self.scan.add(t0.elapsed().as_secs_f64() * 1e3);
             ev.scan = true;
             // The agent's localisation against the truth, right after the scan.
-            if let Some(est) = self.agent.pose_now() {
+            if let Some(est) = self.agent.localiser().pose_now() {
                 let truth = self.sim.truth_pose();
                 let d = est.iso.translation.vector - truth.translation.vector;
                 self.loc.xy_max_m = self.loc.xy_max_m.max(d.xy().norm());
@@ -281,7 +289,7 @@ impl Rig {
     pub fn pose_error_text(&self) -> String {
         let truth = self.sim.truth_pose();
         let t = truth.translation.vector;
-        let Some(est) = self.agent.pose_now() else {
+        let Some(est) = self.agent.localiser().pose_now() else {
             return format!("truth {:.2} {:.2} {:.3} est none", t.x, t.y, t.z);
         };
         let e = est.iso.translation.vector;
@@ -357,17 +365,18 @@ pub fn run_goal_rig(
     while rig.agent.scans() < 3 && rig.t_s() < 5.0 {
         rig.step();
     }
-    let goal = GoalCmd {
-        goal_id: 1,
+    let goal = CommandKind::Goal {
+        id: 1,
         target,
         tolerance_m: 0.0,
     };
-    if let Err(e) = rig.agent.on_goal(&goal) {
+    if let Err(e) = rig.agent.on_command(Command::at(rig.t_s(), goal)) {
         anyhow::bail!("{e}");
     }
     let goal_m = rig
         .agent
-        .navigator()
+        .mission()
+        .nav()
         .goal()
         .map(|g| g.goal_map)
         .unwrap_or_default();
@@ -384,12 +393,13 @@ pub fn run_goal_rig(
                 "trace t {:.1} {} state {:?}",
                 rig.t_s(),
                 rig.pose_error_text(),
-                rig.agent.navigator().state()
+                rig.agent.mission().nav().state()
             );
         }
-        match rig.agent.navigator().state() {
-            MissionState::Reached => break "reached",
-            MissionState::NoPath if rig.agent.navigator().goal().is_none() => break "no_path",
+        let nav = rig.agent.mission().nav();
+        match nav.state() {
+            Phase::Reached => break "reached",
+            Phase::NoPath if nav.goal().is_none() => break "no_path",
             _ => {}
         }
         if rig.t_s() > opts.timeout_s {
@@ -403,7 +413,8 @@ pub fn run_goal_rig(
     let truth = rig.truth();
     let goal_now = rig
         .agent
-        .navigator()
+        .mission()
+        .nav()
         .goal()
         .map(|g| g.goal_map)
         .unwrap_or(goal_m);
@@ -417,10 +428,10 @@ pub fn run_goal_rig(
         time_s: rig.t_s(),
         path_length_m: rig.driven_m,
         collisions: rig.collisions,
-        replans: rig.agent.navigator().replans,
+        replans: rig.agent.mission().nav().replans,
         plan_ms_mean: rig.plan.mean(),
         plan_ms_max: rig.plan.max,
-        reason: rig.agent.navigator().reason().to_string(),
+        reason: rig.agent.mission().nav().reason().to_string(),
         goal_m: goal_now,
         final_m: (truth.x_m, truth.y_m),
         scan_ms_mean: rig.scan.mean(),
@@ -486,14 +497,13 @@ pub fn run_teach_repeat(
     while rig.agent.scans() < 3 {
         rig.step();
     }
-    rig.agent
-        .on_route(
-            rig.t_s(),
-            &RouteCmd::Record {
-                name: "teach".into(),
-            },
-        )
-        .map_err(anyhow::Error::msg)?;
+    let t = rig.t_s();
+    rig.agent.on_command(Command::at(
+        t,
+        CommandKind::Record {
+            name: "teach".into(),
+        },
+    ))?;
     // The operator: a scripted driver on the truth pose, sent through the agent's teleop path
     // exactly as the station's drive commands arrive.
     let mut driver = sim::drive::PathDriver::new(&teach.points, teach.speed_mps.min(0.5));
@@ -504,15 +514,17 @@ pub fn run_teach_repeat(
         if ev.control {
             let (v, w) = driver.command(&rig.truth());
             seq += 1;
-            rig.agent.on_drive(
-                rig.t_s(),
-                &common::msg::DriveCmd {
+            let t = rig.t_s();
+            rig.agent.on_command(Command::at(
+                t,
+                CommandKind::Drive {
                     seq,
-                    v_mps: v as f32,
-                    omega_rps: w as f32,
+                    // As the station's drive commands arrive: f32 on the wire.
+                    v_mps: f64::from(v as f32),
+                    omega_rps: f64::from(w as f32),
                     deadman: true,
                 },
-            );
+            ))?;
             let p = rig.truth();
             if trace_enabled() {
                 eprintln!("trace teach t {:.1} {}", rig.t_s(), rig.pose_error_text());
@@ -539,12 +551,12 @@ pub fn run_teach_repeat(
             taught_truth.push((p.x_m, p.y_m));
         }
     }
+    let t = rig.t_s();
     rig.agent
-        .on_route(rig.t_s(), &RouteCmd::StopRecording)
-        .map_err(anyhow::Error::msg)?;
+        .on_command(Command::at(t, CommandKind::StopRecording))?;
     let route = rig
         .agent
-        .take_recorded()
+        .take_taught_route()
         .ok_or_else(|| anyhow::anyhow!("no route recorded"))?;
     let waypoints = route.points.len();
     let route_length_m: f64 = route
@@ -557,15 +569,14 @@ pub fn run_teach_repeat(
         rig.sim.add_obstacles(&obs.obstacles());
     }
     let collisions_before = rig.collisions;
-    rig.agent
-        .on_route(
-            rig.t_s(),
-            &RouteCmd::Repeat {
-                route: route.clone(),
-                direction: RouteDirection::Reverse,
-            },
-        )
-        .map_err(anyhow::Error::msg)?;
+    let t = rig.t_s();
+    rig.agent.on_command(Command::at(
+        t,
+        CommandKind::Repeat {
+            route: route.clone(),
+            direction: Direction::Reverse,
+        },
+    ))?;
     let t_start = rig.t_s();
     // Per control cycle: lateral distance to the taught path, position, and whether the robot
     // was on a detour (not a free stretch, whatever the map says).
@@ -584,7 +595,7 @@ pub fn run_teach_repeat(
             let p = rig.truth();
             // A detour (or re-plan) that begins with a walker within 2 m of the blockage is a
             // detour around that person.
-            if let Some(f) = rig.agent.route_follower() {
+            if let Some(f) = rig.agent.mission().repeat_or_last().map(|r| &r.follower) {
                 if let Some(d) = f.detours.last() {
                     let now = (f.detours.len(), d.replans);
                     if now != seen_detours {
@@ -603,10 +614,15 @@ pub fn run_teach_repeat(
             // Any detour (round a person or round an added obstacle) is off the taught line on
             // purpose: not a free stretch, however far it swings from the obstacle (a wide
             // detour's return leg can pass more than the 3 m round the obstacle).
-            let detour = rig.agent.route_follower().and_then(|f| {
-                let k = f.detours.len().checked_sub(1)?;
-                f.on_detour().then(|| f.detours[k].rejoin_m)
-            });
+            let detour = rig
+                .agent
+                .mission()
+                .repeat_or_last()
+                .map(|r| &r.follower)
+                .and_then(|f| {
+                    let k = f.detours.len().checked_sub(1)?;
+                    f.on_detour().then(|| f.detours[k].rejoin_m)
+                });
             // The follower is back on the route once the rejoin point is within its reach
             // (`reached_radius_m`), still converging onto the line: that approach belongs to the
             // detour until the robot is `REJOIN_SETTLE_M` past the rejoin point.
@@ -625,9 +641,14 @@ pub fn run_teach_repeat(
                 on_detour,
             ));
             if trace_enabled() {
-                let est = rig.agent.pose_now().map(|p| p.planar).unwrap_or_default();
-                let cmd = rig.agent.last_cmd();
-                let sv = rig.agent.safety();
+                let est = rig
+                    .agent
+                    .localiser()
+                    .pose_now()
+                    .map(|p| p.planar)
+                    .unwrap_or_default();
+                let cmd = rig.agent.driver().last_cmd();
+                let sv = rig.agent.driver().safety();
                 let walker = rig
                     .sim
                     .walkers()
@@ -649,15 +670,18 @@ pub fn run_teach_repeat(
                     lateral.last().map_or(0.0, |l| l.0),
                     cmd.v_mps,
                     cmd.omega_rps,
-                    rig.agent.repeat_holding(),
+                    rig.agent
+                        .mission()
+                        .repeat()
+                        .is_some_and(|r| r.follower.holding()),
                     rig.agent.last_error()
                 );
-                if let Some(f) = rig.agent.route_follower() {
+                if let Some(f) = rig.agent.mission().repeat_or_last().map(|r| &r.follower) {
                     let (k, n, left) = f.progress(&est);
                     let path = f.follow_path(&est);
                     eprintln!(
                         "trace   repeat {:?} next {k}/{n} ({:?}) left {left:.1} m follow {:?}",
-                        rig.agent.repeat_state(),
+                        rig.agent.mission().repeat().and_then(|r| r.last.as_ref()),
                         f.waypoints().get(k).map(|w| w.taught),
                         &path[..path.len().min(4)]
                     );
@@ -676,8 +700,9 @@ pub fn run_teach_repeat(
     }
     let detours = rig
         .agent
-        .route_follower()
-        .map(|f| f.detours.clone())
+        .mission()
+        .repeat_or_last()
+        .map(|r| r.follower.detours.clone())
         .unwrap_or_default();
     // Free stretches: away from every obstacle that was added (their footprint plus 3 m), and
     // not on a detour.
@@ -930,7 +955,7 @@ height_m = 1.5
         let mut rig = Rig::new(&scenario, cfg, &HeadlessOptions::default(), "hills").unwrap();
         let up_err = |rig: &Rig| {
             let truth = rig.sim.truth_pose_at(rig.t_s() - 0.05).unwrap().rotation;
-            let est = rig.agent.pose_now().unwrap().iso.rotation;
+            let est = rig.agent.localiser().pose_now().unwrap().iso.rotation;
             (est.inverse() * Vector3::z())
                 .angle(&(truth.inverse() * Vector3::z()))
                 .to_degrees()
@@ -940,18 +965,22 @@ height_m = 1.5
             .to_degrees();
         while !rig.step().scan {}
         let first = up_err(&rig);
+        let t = rig.t_s();
         rig.agent
-            .on_goal(&GoalCmd {
-                goal_id: 1,
-                target: GoalTarget::Map {
-                    x_m: 20.0,
-                    y_m: 3.0,
+            .on_command(Command::at(
+                t,
+                CommandKind::Goal {
+                    id: 1,
+                    target: GoalTarget::Map {
+                        x_m: 20.0,
+                        y_m: 3.0,
+                    },
+                    tolerance_m: 0.0,
                 },
-                tolerance_m: 0.0,
-            })
+            ))
             .unwrap();
         let (mut worst, mut sum, mut n) = (0.0f64, 0.0, 0.0);
-        while rig.t_s() < 90.0 && rig.agent.navigator().state() != MissionState::Reached {
+        while rig.t_s() < 90.0 && rig.agent.mission().nav().state() != Phase::Reached {
             if rig.step().scan && rig.t_s() > 2.0 {
                 let e = up_err(&rig);
                 worst = worst.max(e);
@@ -959,7 +988,7 @@ height_m = 1.5
                 n += 1.0;
             }
         }
-        assert_eq!(rig.agent.navigator().state(), MissionState::Reached);
+        assert_eq!(rig.agent.mission().nav().state(), Phase::Reached);
         (true_tilt, first, sum / n, worst)
     }
 

@@ -1,7 +1,7 @@
 //! Teach: record the driven route as waypoints spaced by distance and heading change.
 
+use crate::command::RoutePoint;
 use common::geom::{wrap_angle, Pose2};
-use common::msg::RoutePoint;
 use serde::Deserialize;
 
 /// How densely a taught route is sampled.
@@ -96,7 +96,7 @@ impl RouteRecorder {
             lat_deg: lla.map(|l| l.0),
             lon_deg: lla.map(|l| l.1),
             h_m: lla.map(|l| l.2),
-            yaw_rad: pose_map.yaw_rad as f32,
+            yaw_rad: pose_map.yaw_rad,
             t_unix_ms,
         });
         self.last = Some(pose_map);

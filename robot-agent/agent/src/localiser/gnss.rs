@@ -1,8 +1,9 @@
-//! GNSS state for missions: the latest fix and heading from NMEA sentences, loss detection, the
-//! map frame's anchoring at session start, and GNSS goals through the datum (methods.md §2, §5).
+//! GNSS state: the latest fix and heading from NMEA sentences, loss detection, whether the map
+//! frame can be anchored, and GNSS goals through the datum (methods.md §2, §5).
 
+use super::FixKind;
 use common::geo::{parse_sentence, LocalFrame, NmeaError, Sentence};
-use common::msg::{Datum, FixState};
+use common::msg::Datum;
 use nalgebra::Vector3;
 use serde::Deserialize;
 
@@ -45,7 +46,7 @@ pub struct GnssConfig {
     /// ...if they changed within this long, seconds.
     pub map_follow_age_s: f64,
     /// Tilt of the SLAM frame estimated from the GNSS track (`[gnss.tilt]`).
-    pub tilt: crate::mission::gnss_tilt::TiltConfig,
+    pub tilt: super::tilt::TiltConfig,
 }
 
 impl Default for GnssConfig {
@@ -159,10 +160,10 @@ impl GnssTracker {
     }
 
     /// Fix state for the pose message.
-    pub fn fix_state(&self, t_s: f64) -> FixState {
+    pub fn fix_kind(&self, t_s: f64) -> FixKind {
         self.fix(t_s)
-            .map(|f| FixState::from_gga_quality(f.quality))
-            .unwrap_or(FixState::NoFix)
+            .map(|f| FixKind::from_gga_quality(f.quality))
+            .unwrap_or_default()
     }
 
     /// Heading of base_link in the ENU frame (counter-clockwise from east), radians, if fresh.
@@ -316,15 +317,11 @@ mod tests {
         t.on_sentence(0.0, &gga(48.1, 11.5, 4)).unwrap();
         t.on_sentence(0.0, &avr(0.0)).unwrap();
         assert!(t.can_anchor(0.5));
-        assert_eq!(t.fix_state(0.5), FixState::RtkFixed);
+        assert_eq!(t.fix_kind(0.5), FixKind::RtkFixed);
         assert!((t.fix(0.5).unwrap().lla.h_m - 547.0).abs() < 1e-9);
         // North (0 deg clockwise from north) is +90 deg counter-clockwise from east.
         assert!((t.yaw_enu_rad(0.5).unwrap() - std::f64::consts::FRAC_PI_2).abs() < 1e-9);
-        assert_eq!(
-            t.fix_state(2.0),
-            FixState::NoFix,
-            "stale fix counts as lost"
-        );
+        assert_eq!(t.fix_kind(2.0), FixKind::None, "stale fix counts as lost");
         // A corrupt sentence is counted and leaves the fix alone.
         let mut bad = gga(48.2, 11.5, 4);
         bad.replace_range(10..11, "9");

@@ -4,9 +4,9 @@
 //! loop calls [`Navigator::wants_replan`] at its own rate and times [`Navigator::replan`]); it never
 //! reads a clock: every call takes the session time.
 
-use super::gnss::GnssGoal;
+use super::Phase;
+use crate::localiser::gnss::GnssGoal;
 use common::geom::Pose2;
-use common::msg::MissionState;
 use planning::goal::{goal_cell, start_cell, GoalError};
 use planning::reach::{Floods, Reachability};
 use planning::smooth::{cells_to_polyline, polyline_length_m, smooth_polyline};
@@ -50,7 +50,7 @@ pub struct Goal {
 #[derive(Clone, Debug, PartialEq)]
 pub struct PlanReport {
     /// State after planning.
-    pub state: MissionState,
+    pub state: Phase,
     /// Path length, metres (0 without a path).
     pub length_m: f64,
     /// Cells expanded by A*.
@@ -65,7 +65,7 @@ pub struct Navigator {
     planner: Planner,
     floods: Floods,
     goal: Option<Goal>,
-    state: MissionState,
+    state: Phase,
     reason: String,
     path: Vec<(f64, f64)>,
     last_plan_t_s: f64,
@@ -84,7 +84,7 @@ impl Navigator {
             planner: Planner::new(),
             floods: Floods::new(),
             goal: None,
-            state: MissionState::Idle,
+            state: Phase::Idle,
             reason: String::new(),
             path: Vec::new(),
             last_plan_t_s: f64::NEG_INFINITY,
@@ -100,7 +100,7 @@ impl Navigator {
             goal.tolerance_m = self.cfg.goal_tolerance_m;
         }
         self.goal = Some(goal);
-        self.state = MissionState::Planning;
+        self.state = Phase::Planning;
         self.reason = "new goal".into();
         self.path.clear();
         self.path_invalid = true;
@@ -111,12 +111,12 @@ impl Navigator {
     pub fn stop(&mut self, reason: &str) {
         self.goal = None;
         self.path.clear();
-        self.state = MissionState::Stopped;
+        self.state = Phase::Stopped;
         self.reason = reason.to_string();
     }
 
     /// Current mission state.
-    pub fn state(&self) -> MissionState {
+    pub fn state(&self) -> Phase {
         self.state
     }
 
@@ -142,18 +142,18 @@ impl Navigator {
 
     /// True while the robot should be moving along the path.
     pub fn is_driving(&self) -> bool {
-        self.state == MissionState::Driving && !self.path.is_empty()
+        self.state == Phase::Driving && !self.path.is_empty()
     }
 
     /// Marks the mission blocked by the safety stop (or clears that), without losing the path.
     pub fn set_blocked(&mut self, blocked: bool, reason: &str) {
         match (blocked, self.state) {
-            (true, MissionState::Driving) => {
-                self.state = MissionState::Blocked;
+            (true, Phase::Driving) => {
+                self.state = Phase::Blocked;
                 self.reason = reason.to_string();
             }
-            (false, MissionState::Blocked) => {
-                self.state = MissionState::Driving;
+            (false, Phase::Blocked) => {
+                self.state = Phase::Driving;
                 self.reason = "path clear again".into();
                 self.path_invalid = true;
             }
@@ -166,10 +166,7 @@ impl Navigator {
     pub fn wants_replan(&self, t_s: f64) -> bool {
         let active = matches!(
             self.state,
-            MissionState::Planning
-                | MissionState::Driving
-                | MissionState::Blocked
-                | MissionState::NoPath
+            Phase::Planning | Phase::Driving | Phase::Blocked | Phase::NoPath
         );
         active
             && self.goal.is_some()
@@ -197,7 +194,7 @@ impl Navigator {
         let Some(goal) = &self.goal else { return false };
         let d = (goal.goal_map.0 - pose.x_m).hypot(goal.goal_map.1 - pose.y_m);
         if d <= goal.tolerance_m {
-            self.state = MissionState::Reached;
+            self.state = Phase::Reached;
             self.reason = format!("within {d:.2} m of goal {}", goal.id);
             self.path.clear();
             self.goal = None;
@@ -271,7 +268,7 @@ impl Navigator {
                 }
                 self.path = smooth;
                 self.no_path_since_s = None;
-                self.state = MissionState::Driving;
+                self.state = Phase::Driving;
                 self.reason = match reach.reachability {
                     Reachability::MayExistBeyondMap => {
                         "heading for the map edge towards the goal".into()
@@ -293,12 +290,12 @@ impl Navigator {
         let since = *self.no_path_since_s.get_or_insert(t_s);
         self.reason = reason;
         if robot_blocked {
-            self.state = MissionState::Blocked;
+            self.state = Phase::Blocked;
         } else if t_s - since >= self.cfg.no_path_give_up_s {
-            self.state = MissionState::NoPath;
+            self.state = Phase::NoPath;
             self.goal = None;
         } else {
-            self.state = MissionState::NoPath;
+            self.state = Phase::NoPath;
         }
         self.report(0.0, 0)
     }
@@ -355,7 +352,7 @@ mod tests {
         assert!(n.wants_replan(0.0));
         let pose = Pose2::new(2.0, 2.0, 0.0);
         let r = n.replan(0.0, &pose, &grid_with_wall(true));
-        assert_eq!(r.state, MissionState::Driving);
+        assert_eq!(r.state, Phase::Driving);
         // Straight line 16 m; through the gap at (10, 16-18) at least 2 x 16.1 m.
         assert!(
             r.length_m > 32.0 && r.length_m < 37.0,
@@ -367,7 +364,7 @@ mod tests {
         assert!(!n.wants_replan(0.1));
         assert!(n.wants_replan(0.6), "2 Hz replanning");
         assert!(n.check_reached(&Pose2::new(17.9, 2.1, 0.0)));
-        assert_eq!(n.state(), MissionState::Reached);
+        assert_eq!(n.state(), Phase::Reached);
         assert!(!n.wants_replan(10.0));
     }
 
@@ -385,11 +382,11 @@ mod tests {
         }
         n.set_goal(goal(18.0, 2.0));
         let pose = Pose2::new(2.0, 2.0, 0.0);
-        assert_eq!(n.replan(0.0, &pose, &g).state, MissionState::NoPath);
+        assert_eq!(n.replan(0.0, &pose, &g).state, Phase::NoPath);
         assert!(n.goal().is_some(), "still re-checking");
         assert!(n.wants_replan(0.5));
         n.replan(11.0, &pose, &g);
-        assert_eq!(n.state(), MissionState::NoPath);
+        assert_eq!(n.state(), Phase::NoPath);
         assert!(n.goal().is_none(), "gave up");
         assert!(n.reason().contains("cut off"), "{}", n.reason());
     }

@@ -1,6 +1,9 @@
 //! The robot profile (`config/robot.toml`): body, mobility limits and sensor mounting.
 //! Defaults are the Clearpath Husky A200 of methods.md §4.
 //!
+//! Shared by the agent (footprint, sensor mounts, limits), the simulator (the plant and the truth
+//! labels) and the station (the limits it shows), so it lives here rather than in any of them.
+//!
 //! `base_link`: origin on the ground surface under the robot centre, x forward, y left, z up.
 //! Sensor mounts are `base_link -> sensor` transforms given as position and roll/pitch/yaw
 //! (degrees, applied as `Rz(yaw) Ry(pitch) Rx(roll)`; positive pitch tilts the x axis down).
@@ -133,22 +136,15 @@ impl Default for RobotProfile {
     }
 }
 
-impl RobotProfile {
-    /// Parses a profile from TOML text (`config/robot.toml`); missing fields keep the Husky values.
-    pub fn from_toml_str(text: &str) -> Result<Self, toml::de::Error> {
-        toml::from_str(text)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
     fn config_file_matches_defaults() {
-        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/robot.toml");
+        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/robot.toml");
         let text = std::fs::read_to_string(p).unwrap();
-        let prof = RobotProfile::from_toml_str(&text).unwrap();
+        let prof: RobotProfile = toml::from_str(&text).unwrap();
         assert_eq!(prof, RobotProfile::default());
     }
 

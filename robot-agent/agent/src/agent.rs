@@ -1,0 +1,747 @@
+//! [`Agent`]: one robot's pipeline, a short orchestrator over its parts.
+//!
+//! ```text
+//! odometry, IMU, GNSS, sweeps ─▶ Localiser ─▶ pose ─┬─▶ TerrainMap (mapper, planning grids)
+//!                                   │ frame shifts ──┘          │
+//!          commands ─▶ MissionMachine (Idle|Goal|Teleop|Teach|Repeat) ◀── plans ─┘
+//!                                   │
+//!                 sweep ─▶ Driver (followers, safety gate) ─▶ Cmd
+//! ```
+//!
+//! The agent is driven by a loop that feeds it time-stamped data and asks for a command at the
+//! control rate ([`Agent::tick`]); it never reads a clock, so the same code runs in the headless
+//! simulator (faster than real time), on a real robot, in a replay and in tests.
+
+use crate::command::{refusal, Command, CommandKind, Direction, GoalTarget, TaughtRoute};
+use crate::config::AgentConfig;
+use crate::driver::{Cmd, Driver, DriverConfig, Teleop, Tracker};
+use crate::localiser::gnss::GnssGoal;
+use crate::localiser::{FrameKind, Localiser, PoseMap};
+use crate::mission::navigate::{Goal, Navigator};
+use crate::mission::repeat::{RepeatState, RouteFollower};
+use crate::mission::teach::RouteRecorder;
+use crate::mission::teach_view::TeachView;
+use crate::mission::{Event, MissionMachine, Mode, Outcome, Phase, Repeat};
+use crate::status::{AgentStatus, PoseEstimate, RouteProgress};
+use crate::terrain::TerrainMap;
+use common::command::{Refusal, RefusalCode};
+use common::grid::{Lattice, Tile};
+use common::msg::Datum;
+use sensing::{GnssSentence, ImuSample, OdomSample, Scan};
+
+/// What one sweep did.
+#[derive(Clone, Debug, Default)]
+pub struct ScanReport {
+    /// SLAM fell back to its prior (or failed outright).
+    pub slam_failed: bool,
+    /// Grid cells reclassified.
+    pub classified_cells: usize,
+    /// The path ahead became blocked.
+    pub path_blocked: bool,
+    /// The sweep was left out of the map (its pose was not trusted).
+    pub not_mapped: bool,
+}
+
+/// Who the agent is: its robot and session.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Identity {
+    /// Robot id.
+    pub robot: String,
+    /// Session id.
+    pub session_id: String,
+    /// Unix milliseconds of session time 0.
+    pub start_unix_ms: u64,
+}
+
+/// How many teach-time views a session keeps (a session teaches a handful of routes).
+const TEACH_VIEWS_KEPT: usize = 8;
+
+/// The robot agent. See the module docs.
+pub struct Agent {
+    cfg: AgentConfig,
+    id: Identity,
+    localiser: Localiser,
+    terrain: TerrainMap,
+    mission: MissionMachine,
+    driver: Driver,
+    /// The local traversability seen while teaching, by route id (this session's routes).
+    teach_views: Vec<(String, TeachView)>,
+    pending_tiles: Vec<Tile>,
+    /// The grid changed since the path was last checked against it.
+    path_dirty: bool,
+    taught: Option<TaughtRoute>,
+    last_plan_t_s: f64,
+    last_error: Option<String>,
+    commands_refused: u32,
+    scans_not_mapped: u64,
+}
+
+impl Agent {
+    /// A new agent for one session.
+    pub fn new(cfg: AgentConfig, id: Identity) -> Result<Self, mapping::MapError> {
+        let driver = Driver::new(DriverConfig {
+            control: cfg.control.clone(),
+            route_lookahead_m: cfg.repeat.lookahead_m,
+            route_rotate_in_place_rad: cfg.repeat.rotate_in_place_rad,
+            deadman_s: cfg.deadman_s,
+            safety_scan_timeout_s: cfg.safety_scan_timeout_s,
+            safety_stop_block_s: cfg.repeat.safety_stop_block_s,
+        });
+        Ok(Self {
+            localiser: Localiser::new(&cfg),
+            terrain: TerrainMap::new(&cfg)?,
+            mission: MissionMachine::new(Navigator::new(cfg.nav.clone(), cfg.planner.clone())),
+            driver,
+            teach_views: Vec::new(),
+            pending_tiles: Vec::new(),
+            path_dirty: false,
+            taught: None,
+            last_plan_t_s: f64::NEG_INFINITY,
+            last_error: None,
+            commands_refused: 0,
+            scans_not_mapped: 0,
+            cfg,
+            id,
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &AgentConfig {
+        &self.cfg
+    }
+
+    /// Who the agent is.
+    pub fn identity(&self) -> &Identity {
+        &self.id
+    }
+
+    /// Unix milliseconds of session time `t_s`.
+    pub fn unix_ms(&self, t_s: f64) -> u64 {
+        self.id.start_unix_ms + (t_s.max(0.0) * 1000.0) as u64
+    }
+
+    // ---- sensor data ----
+
+    /// Feeds one wheel-odometry sample.
+    pub fn on_odom(&mut self, o: OdomSample) {
+        self.localiser.on_odom(o);
+    }
+
+    /// Feeds one IMU sample; a bad one is counted and shown, never fatal.
+    pub fn on_imu(&mut self, s: &ImuSample) {
+        if let Err(e) = self.localiser.on_imu(s) {
+            self.last_error = Some(e);
+        }
+    }
+
+    /// Feeds one NMEA sentence; a bad one is counted and shown, never fatal.
+    pub fn on_gnss(&mut self, s: &GnssSentence) {
+        let update = match self.localiser.on_gnss(s) {
+            Ok(u) => u,
+            Err(e) => {
+                self.last_error = Some(e);
+                return;
+            }
+        };
+        if let Some(shift) = update.shift {
+            self.terrain.follow_frame(&shift);
+        }
+        // Re-evaluate a GNSS goal with each new fix (methods.md §5).
+        if let (Some(fix), Some(pose)) = (self.localiser.fix(s.t_s), self.localiser.pose_now()) {
+            let freeze = self.localiser.gnss_config().goal_freeze_distance_m;
+            if let Some(goal) = self.mission.nav_mut().goal_mut() {
+                if let Some(g) = goal.gnss.as_mut() {
+                    g.refresh((pose.planar.x_m, pose.planar.y_m), &fix, freeze);
+                    goal.goal_map = g.goal_map;
+                }
+            }
+        }
+    }
+
+    /// Processes one LiDAR sweep: localisation, mapping, the safety check, the path check.
+    pub fn on_scan(&mut self, scan: &Scan) -> ScanReport {
+        let mut rep = ScanReport::default();
+        let loc = match self.localiser.on_scan(scan) {
+            Ok(l) => l,
+            Err(e) => {
+                rep.slam_failed = true;
+                self.last_error = Some(e.to_string());
+                return rep;
+            }
+        };
+        rep.slam_failed = loc.fell_back;
+        for shift in &loc.shifts {
+            self.terrain.follow_frame(shift);
+        }
+        if loc.trusted {
+            // The de-skewed sweep when SLAM made one: the raw one is smeared by the motion.
+            let deskewed = loc.deskewed.map(|points| Scan {
+                stamp_s: scan.stamp_s,
+                points,
+            });
+            match self.terrain.update(
+                deskewed.as_ref().unwrap_or(scan),
+                &loc.pose_map_lidar,
+                &loc.pose,
+            ) {
+                Ok(u) => {
+                    rep.classified_cells = u.classified_cells;
+                    self.pending_tiles.extend(u.tiles);
+                    self.path_dirty |= u.class_changes > 0;
+                }
+                Err(e) => self.last_error = Some(format!("mapping: {e}")),
+            }
+        } else {
+            self.scans_not_mapped += 1;
+            rep.not_mapped = true;
+            tracing::debug!(
+                "sweep at {:.2} s not mapped: pose jumped {:.2} m, or pitch or position disagrees with GNSS",
+                scan.stamp_s,
+                loc.jump_m
+            );
+        }
+        // The safety stop judges the raw sweep, in base_link.
+        let base_from_lidar = *self.localiser.base_from_lidar();
+        self.driver.on_sweep(
+            scan.stamp_s,
+            scan.points.iter().map(|p| {
+                let q = base_from_lidar
+                    * nalgebra::Point3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z));
+                (q.x, q.y, q.z)
+            }),
+            &loc.pose,
+        );
+        // A grid change on the path asks for a replan now.
+        if self.path_dirty && self.mission.nav().is_driving() {
+            let grid = self
+                .terrain
+                .plan_grid(&loc.pose.planar, self.driver.lasting_stop_m());
+            rep.path_blocked = self.mission.nav_mut().check_path(&grid, &loc.pose.planar);
+            self.path_dirty = false;
+        }
+        rep
+    }
+
+    /// Maps a sweep at a pose given from outside instead of the localiser's: the upper bound of
+    /// an evaluation that knows the truth (`robot-agent map eval --use-truth-poses`). `points_map`
+    /// is the sweep in the map frame, `sensor_m` where it was seen from, `robot` the robot.
+    pub fn map_at_given_pose(
+        &mut self,
+        points_map: Vec<[f32; 3]>,
+        sensor_m: [f64; 3],
+        robot: &mapping::RobotPose,
+        t_s: f64,
+    ) -> Result<mapping::UpdateReport, mapping::MapError> {
+        let u = self.terrain.update_at(points_map, sensor_m, robot, t_s)?;
+        self.pending_tiles.extend(u.tiles.iter().cloned());
+        Ok(u)
+    }
+
+    // ---- commands ----
+
+    /// One command; a refusal is counted, shown in the status and logged here (once).
+    pub fn on_command(&mut self, cmd: Command) -> Result<(), Refusal> {
+        let r = self.command(cmd);
+        if let Err(e) = &r {
+            self.count_refusal(e);
+        }
+        r
+    }
+
+    /// A refusal made before the command reached the agent (the bus's checks): shown in the
+    /// status. `counted`: the bus counted it already.
+    pub fn note_refusal(&mut self, r: &Refusal) {
+        self.count_refusal(r);
+    }
+
+    fn count_refusal(&mut self, r: &Refusal) {
+        self.commands_refused += 1;
+        self.last_error = Some(r.to_string());
+        tracing::warn!("refused: {r}");
+    }
+
+    fn command(&mut self, cmd: Command) -> Result<(), Refusal> {
+        let t_s = cmd.t_s;
+        let kind_name = cmd.kind.name();
+        let event = match cmd.kind {
+            CommandKind::Goal {
+                id,
+                target,
+                tolerance_m,
+            } => Event::Goal(self.place_goal(t_s, id, target, tolerance_m)?),
+            CommandKind::Drive {
+                seq,
+                v_mps,
+                omega_rps,
+                deadman,
+            } => Event::Drive(Teleop {
+                t_s,
+                seq,
+                v_mps,
+                omega_rps,
+                deadman,
+            }),
+            CommandKind::Stop { reason } => Event::Stop(reason),
+            CommandKind::SpeedLimit { v_mps } => {
+                self.driver.set_speed_limit(v_mps);
+                return Ok(());
+            }
+            CommandKind::Record { name } => {
+                let mut rec = RouteRecorder::new(self.cfg.teach.clone(), name);
+                if let Some(p) = self.localiser.pose_now() {
+                    rec.offer(p.planar, self.localiser.lla_of(&p), self.unix_ms(t_s));
+                }
+                Event::Record(rec)
+            }
+            CommandKind::StopRecording => Event::StopRecording,
+            CommandKind::Repeat { route, direction } => {
+                Event::Repeat(Box::new(self.start_repeat(&route, direction)?))
+            }
+            CommandKind::Pause => Event::Pause,
+            CommandKind::Resume => Event::Resume,
+            CommandKind::Cancel => Event::Cancel,
+        };
+        match self.mission.transition(event) {
+            Ok(Outcome::Done) => Ok(()),
+            Ok(Outcome::Recorded(rec)) => {
+                self.finish_teaching(t_s, rec);
+                Ok(())
+            }
+            Err(e) => {
+                debug_assert!(e.message.starts_with(kind_name), "{e}");
+                Err(e)
+            }
+        }
+    }
+
+    /// A goal in the map frame: as given, or through the datum for lat/lon.
+    fn place_goal(
+        &self,
+        t_s: f64,
+        id: u32,
+        target: GoalTarget,
+        tolerance_m: f64,
+    ) -> Result<Goal, Refusal> {
+        let pose = self
+            .localiser
+            .pose_now()
+            .map(|p| p.planar)
+            .unwrap_or_default();
+        let (goal_map, gnss) = match target {
+            GoalTarget::Map { x_m, y_m } => ((x_m, y_m), None),
+            GoalTarget::Geodetic {
+                lat_deg,
+                lon_deg,
+                h_m,
+            } => {
+                let fix = self.localiser.fix(t_s);
+                let g = GnssGoal::new(
+                    lat_deg,
+                    lon_deg,
+                    h_m,
+                    self.localiser.local_frame(),
+                    (pose.x_m, pose.y_m),
+                    fix.as_ref(),
+                )
+                .map_err(|e| {
+                    let code = match e {
+                        crate::localiser::gnss::GnssGoalError::NoDatum => RefusalCode::NoDatum,
+                        _ => RefusalCode::LatitudeOutOfRange,
+                    };
+                    refusal(code, "goal", e)
+                })?;
+                (g.goal_map, Some(g))
+            }
+        };
+        Ok(Goal {
+            id,
+            goal_map,
+            tolerance_m,
+            gnss,
+        })
+    }
+
+    /// Sets up a repeat of `route` in this session's map frame.
+    fn start_repeat(&self, route: &TaughtRoute, direction: Direction) -> Result<Repeat, Refusal> {
+        if route.points.len() < 2 {
+            return Err(refusal(
+                RefusalCode::RouteTooShort,
+                "route",
+                "fewer than 2 waypoints",
+            ));
+        }
+        let pts = self.route_in_map(route)?;
+        let ordered: Vec<(f64, f64)> = match direction {
+            Direction::Forward => pts,
+            Direction::Reverse => pts.into_iter().rev().collect(),
+        };
+        let pose = self
+            .localiser
+            .pose_now()
+            .map(|p| p.planar)
+            .unwrap_or_default();
+        let view = self
+            .teach_views
+            .iter()
+            .find(|(id, _)| *id == route.route_id && route.session_id == self.id.session_id)
+            .map(|(_, v)| v.clone());
+        Ok(Repeat {
+            follower: RouteFollower::new(self.cfg.repeat.clone(), &ordered, &pose),
+            route_id: route.route_id.clone(),
+            name: route.name.clone(),
+            paused: false,
+            last: None,
+            view,
+        })
+    }
+
+    /// The route's waypoints in this session's map frame: through lat/lon when both have a
+    /// datum, as taught when the route was taught in this session's frame.
+    fn route_in_map(&self, route: &TaughtRoute) -> Result<Vec<(f64, f64)>, Refusal> {
+        let local = self.localiser.local_frame().copied();
+        let same_session = route.session_id == self.id.session_id;
+        let all_geodetic = route
+            .points
+            .iter()
+            .all(|p| p.lat_deg.is_some() && p.lon_deg.is_some());
+        match (local, all_geodetic) {
+            (Some(l), true) if !same_session || route.datum != Some(l.datum()) => Ok(route
+                .points
+                .iter()
+                .map(|p| {
+                    let e = l.lla_to_enu(&Datum {
+                        lat_deg: p.lat_deg.unwrap_or_default(),
+                        lon_deg: p.lon_deg.unwrap_or_default(),
+                        h_m: p.h_m.unwrap_or(l.datum().h_m),
+                    });
+                    (e.x, e.y)
+                })
+                .collect()),
+            _ if same_session || route.datum.is_none() => {
+                Ok(route.points.iter().map(|p| (p.x_m, p.y_m)).collect())
+            }
+            _ => Err(refusal(
+                RefusalCode::RouteFrameMismatch,
+                "route",
+                "taught in another frame and this session has no datum",
+            )),
+        }
+    }
+
+    /// Ends teaching: the route and its teach-time view.
+    fn finish_teaching(&mut self, t_s: f64, rec: RouteRecorder) {
+        let now = self.localiser.pose_now();
+        let pose = now.map(|p| p.planar).unwrap_or_default();
+        let lla = now.and_then(|p| self.localiser.lla_of(&p));
+        let name = rec.name().to_string();
+        let points = rec.finish(pose, lla, self.unix_ms(t_s));
+        let route_id = format!("{}-{}", self.id.session_id, self.unix_ms(t_s));
+        let line: Vec<(f64, f64)> = points.iter().map(|p| (p.x_m, p.y_m)).collect();
+        let view = self.terrain.capture_teach_view(&line);
+        tracing::info!(
+            "teach: route {route_id}, {} waypoints, {} cells of teach-time traversability kept",
+            points.len(),
+            view.len()
+        );
+        if self.teach_views.len() >= TEACH_VIEWS_KEPT {
+            self.teach_views.remove(0);
+        }
+        self.teach_views.push((route_id.clone(), view));
+        self.taught = Some(TaughtRoute {
+            route_id,
+            name,
+            robot: self.id.robot.clone(),
+            session_id: self.id.session_id.clone(),
+            datum: self.localiser.frame().and_then(|f| f.1),
+            points,
+        });
+    }
+
+    /// The route taught last, once, after teaching ended.
+    pub fn take_taught_route(&mut self) -> Option<TaughtRoute> {
+        self.taught.take()
+    }
+
+    // ---- the loop's periodic work ----
+
+    /// Plans when due and returns the command for now (call at the control rate). The bool says
+    /// whether a plan was computed (the caller may time the call).
+    pub fn tick(&mut self, t_s: f64) -> (Cmd, bool) {
+        let planned = self.plan_if_due(t_s);
+        (self.control(t_s), planned)
+    }
+
+    /// Plans when due (goal) or runs a repeat cycle; true when a plan was computed.
+    pub fn plan_if_due(&mut self, t_s: f64) -> bool {
+        let Some(pose) = self.localiser.pose_now() else {
+            return false;
+        };
+        if self.mission.mode() == Mode::Repeat {
+            if t_s - self.last_plan_t_s < 1.0 / self.cfg.planner.replan_rate_hz {
+                return false;
+            }
+            self.last_plan_t_s = t_s;
+            self.repeat_cycle(t_s, &pose);
+            return true;
+        }
+        if !self.mission.nav().wants_replan(t_s) {
+            return false;
+        }
+        let grid = self
+            .terrain
+            .plan_grid(&pose.planar, self.driver.lasting_stop_m());
+        self.mission.nav_mut().replan(t_s, &pose.planar, &grid);
+        true
+    }
+
+    /// One repeat cycle: the route ahead checked against the corridor, detours planned.
+    fn repeat_cycle(&mut self, t_s: f64, pose: &PoseMap) {
+        let stop_m = self.driver.lasting_stop_m();
+        let (window, view) = self.terrain.window(&pose.planar);
+        let grid = self
+            .terrain
+            .plan_grid_in(&pose.planar, &window, &view, stop_m);
+        let Some(r) = self.mission.repeat_mut() else {
+            return;
+        };
+        // A stop that lasts is a blockage of the route (the person will not move while the
+        // robot is in the way): wait, then detour round it, like any other.
+        let corridor = self
+            .terrain
+            .corridor_grid(&window, &view, r.view.as_ref(), stop_m);
+        // Blocked points whose cells are worth a log line.
+        let mut explain: Vec<(f64, f64)> = Vec::new();
+        let f = &mut r.follower;
+        let before = f.detours.last().map(|d| (f.detours.len(), d.replans));
+        let state = f.update_with_corridor(&pose.planar, &grid, &corridor, t_s);
+        // A wait is logged once, when it begins.
+        let was_waiting = matches!(r.last, Some(RepeatState::Waiting { holding: true, .. }));
+        r.last = Some(state.clone());
+        if let Some(d) = f.detours.last() {
+            if before != Some((f.detours.len(), d.replans)) {
+                let (cx, cy) = self.terrain.lattice().cell_of(d.blocked_m.0, d.blocked_m.1);
+                tracing::info!(
+                    "repeat: detour {} (re-plan {}) around ({:.1}, {:.1}) [{:?}], rejoins taught point {} at ({:.1}, {:.1}), {:.1} m",
+                    f.detours.len(),
+                    d.replans,
+                    d.blocked_m.0,
+                    d.blocked_m.1,
+                    self.terrain.mapper().class(cx, cy),
+                    d.rejoin_taught,
+                    d.rejoin_m.0,
+                    d.rejoin_m.1,
+                    d.length_m
+                );
+                explain.push(d.blocked_m);
+            }
+        }
+        let mut finished = false;
+        match state {
+            RepeatState::Following => {}
+            RepeatState::Waiting { at_m, holding } => {
+                if holding && !was_waiting {
+                    tracing::info!(
+                        "repeat: waiting for the route to clear at ({:.1}, {:.1})",
+                        at_m.0,
+                        at_m.1
+                    );
+                }
+            }
+            RepeatState::Blocked(why) => {
+                let e = format!("repeat: holding: {why}");
+                if self.last_error.as_deref() != Some(e.as_str()) {
+                    tracing::warn!("{e}");
+                    explain.extend(f.blockage_m());
+                }
+                self.last_error = Some(e);
+            }
+            RepeatState::Finished => finished = true,
+        }
+        let view = self.mission.repeat().and_then(|r| r.view.clone());
+        for at in explain {
+            self.terrain.log_blocking_cells(at, view.as_ref());
+        }
+        if finished {
+            // Internal events never refuse.
+            let _ = self.mission.transition(Event::RouteFinished);
+        }
+    }
+
+    /// The command for now (call at the control rate, after [`Agent::plan_if_due`]).
+    pub fn control(&mut self, t_s: f64) -> Cmd {
+        let Some(pose) = self.localiser.pose_now() else {
+            return Cmd::default();
+        };
+        // A single sweep that SLAM placed 0.4 m off at a ramp's foot became a taught waypoint
+        // the repeat then steered to: only trusted poses are taught.
+        if self.localiser.pose_teachable(t_s) {
+            let lla = self.localiser.lla_of(&pose);
+            let ms = self.unix_ms(t_s);
+            if let Some(rec) = self.mission.recorder_mut() {
+                rec.offer(pose.planar, lla, ms);
+            }
+        }
+        let stop_ahead = self.driver.stop_ahead(t_s);
+        let cmd = match self.mission.mode() {
+            Mode::Teleop | Mode::Teach => {
+                self.driver.teleop(t_s, self.mission.teleop(), stop_ahead)
+            }
+            Mode::Goal => {
+                if self.mission.nav_mut().check_reached(&pose.planar) {
+                    let _ = self.mission.transition(Event::GoalReached);
+                }
+                let safety_stop = self.driver.safety().stop;
+                let nav = self.mission.nav_mut();
+                nav.set_blocked(
+                    nav.is_driving() && stop_ahead && safety_stop,
+                    "safety stop: obstacle close to the robot",
+                );
+                if nav.is_driving() || nav.state() == Phase::Blocked && !nav.path().is_empty() {
+                    self.driver
+                        .follow(Tracker::Path, &pose.planar, nav.path(), stop_ahead, true)
+                } else {
+                    Cmd::default()
+                }
+            }
+            Mode::Repeat => match self.mission.repeat() {
+                Some(r) if !r.follower.holding() && !r.paused => {
+                    let path = r.follower.follow_path(&pose.planar);
+                    self.driver
+                        .follow(Tracker::Route, &pose.planar, &path, stop_ahead, true)
+                }
+                _ => Cmd::default(),
+            },
+            Mode::Idle => Cmd::default(),
+        };
+        self.driver.set_last(cmd);
+        cmd
+    }
+
+    // ---- what the agent tells the world ----
+
+    /// The pose estimate for now.
+    pub fn pose(&self, t_s: f64) -> Option<PoseEstimate> {
+        let p = self.localiser.pose_now()?;
+        let odom = self.localiser.last_odom();
+        Some(PoseEstimate {
+            t_s,
+            pose: p,
+            v_mps: odom.map_or(0.0, |o| o.v_mps),
+            omega_rps: odom.map_or(0.0, |o| o.omega_rps),
+            fix: self.localiser.fix_kind(t_s),
+            lla: self.localiser.lla_of(&p),
+        })
+    }
+
+    /// The status for now.
+    pub fn status(&self, t_s: f64) -> AgentStatus {
+        let pose = self
+            .localiser
+            .pose_now()
+            .map(|p| p.planar)
+            .unwrap_or_default();
+        let (phase, reason) = self.mission.phase(self.driver.safety().stop);
+        let route = self.mission.repeat().map(|r| {
+            let (k, n, left) = r.follower.progress(&pose);
+            RouteProgress {
+                route_id: r.route_id.clone(),
+                name: r.name.clone(),
+                waypoint: k,
+                waypoints: n,
+                distance_left_m: left,
+                detours: r.follower.detours.len(),
+            }
+        });
+        let nav = self.mission.nav();
+        AgentStatus {
+            t_s,
+            mode: self.mission.mode(),
+            driving: self.mission.teleop().is_some(),
+            phase,
+            reason,
+            goal_m: nav.goal().map(|g| g.goal_map),
+            goal_id: nav.goal().map_or(0, |g| g.id),
+            fix: self.localiser.fix_kind(t_s),
+            gnss_lost: self.localiser.gnss_lost(t_s),
+            slam: self.localiser.health().clone(),
+            speed_limit_mps: self.driver.speed_limit_mps(),
+            recording: self.mission.recording(),
+            route,
+            last_error: self.last_error.clone(),
+            commands_refused: self.commands_refused,
+        }
+    }
+
+    /// The path being followed (goal or route), map frame.
+    pub fn current_path(&self) -> Vec<(f64, f64)> {
+        match (self.mission.repeat(), self.localiser.pose_now()) {
+            (Some(r), Some(p)) => r.follower.path_ahead(&p.planar),
+            _ => self.mission.nav().path().to_vec(),
+        }
+    }
+
+    /// Changed tiles since the last call (already versioned by the mapper).
+    pub fn take_tiles(&mut self) -> Vec<Tile> {
+        std::mem::take(&mut self.pending_tiles)
+    }
+
+    /// All current tiles (for a late-joining station).
+    pub fn all_tiles(&self) -> Vec<Tile> {
+        self.terrain.tiles()
+    }
+
+    /// The map frame's anchoring, once the first sweep has arrived.
+    pub fn map_frame(&self) -> Option<(FrameKind, Option<Datum>)> {
+        self.localiser.frame()
+    }
+
+    /// The lattice tiles live on.
+    pub fn lattice(&self) -> Lattice {
+        self.terrain.lattice()
+    }
+
+    /// The localiser (evaluation, pose between sweeps).
+    pub fn localiser(&self) -> &Localiser {
+        &self.localiser
+    }
+
+    /// The terrain map (evaluation, rendering).
+    pub fn terrain(&self) -> &TerrainMap {
+        &self.terrain
+    }
+
+    /// The mapper (evaluation, rendering).
+    pub fn mapper(&self) -> &mapping::Mapper {
+        self.terrain.mapper()
+    }
+
+    /// The mission state machine (evaluation).
+    pub fn mission(&self) -> &MissionMachine {
+        &self.mission
+    }
+
+    /// The driver (safety verdict, last command).
+    pub fn driver(&self) -> &Driver {
+        &self.driver
+    }
+
+    /// The mode the agent is in.
+    pub fn mode(&self) -> Mode {
+        self.mission.mode()
+    }
+
+    /// The last error or refusal, for operators and logs.
+    pub fn last_error(&self) -> Option<&str> {
+        self.last_error.as_deref()
+    }
+
+    /// Sweeps left out of the map because their pose was not trusted (a SLAM glitch).
+    pub fn scans_not_mapped(&self) -> u64 {
+        self.scans_not_mapped
+    }
+
+    /// Sweeps localised.
+    pub fn scans(&self) -> u32 {
+        self.localiser.scans()
+    }
+}

@@ -1,0 +1,276 @@
+//! The terrain map: the traversability mapper (`mapping`) and the planning grids built from it.
+//!
+//! Each sweep is mapped at its localised pose. Planning reads a window of final cells around the
+//! robot once per cycle and builds from it the planning grid (cost rule, then the layers of
+//! [`layers`]: the robot's footprint cleared, a lasting safety stop stamped) and, while
+//! repeating, the taught route's corridor grid.
+
+pub mod layers;
+
+use crate::config::AgentConfig;
+use crate::localiser::{FrameShift, PoseMap};
+use crate::mission::teach_view::{TaughtCell, TeachView};
+use common::geom::Pose2;
+use common::grid::{CellState, Lattice, Tile};
+use planning::{CostRule, GridWindow, PlanGrid, PlannerConfig};
+use sensing::Scan;
+
+/// Sizes the terrain map needs from the robot profile and the safety stop, metres.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Body {
+    /// Half the larger of the footprint's length and width: the disc the robot stands on.
+    footprint_radius_m: f64,
+    /// Half the body width plus the safety stop's side margin: how far a lasting stop's point
+    /// keeps the body's centre away.
+    stop_reach_m: f64,
+    /// Half the body width plus `corridor_margin_m`: how far either side of a taught route its
+    /// corridor reaches.
+    corridor_radius_m: f64,
+}
+
+/// Parameters of the taught corridor's obstacle test.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct CorridorRule {
+    new_obstacle_rise_m: f32,
+    newest_evidence_min_points: u32,
+}
+
+/// What mapping one sweep did.
+#[derive(Clone, Debug, Default)]
+pub struct MapUpdate {
+    /// Tiles to publish (changed, within their rate limit).
+    pub tiles: Vec<Tile>,
+    /// Cells reclassified.
+    pub classified_cells: usize,
+    /// Cells whose class changed.
+    pub class_changes: usize,
+}
+
+/// The mapper's robot pose: `base_link` (on the ground under the centre) and its heading.
+fn robot_pose(pose: &PoseMap) -> mapping::RobotPose {
+    let t = pose.iso.translation.vector;
+    mapping::RobotPose {
+        x_m: t.x,
+        y_m: t.y,
+        z_m: t.z,
+        yaw_rad: pose.planar.yaw_rad,
+    }
+}
+
+/// See the module docs.
+pub struct TerrainMap {
+    mapper: mapping::Mapper,
+    planner: PlannerConfig,
+    body: Body,
+    corridor_rule: CorridorRule,
+    map_follow_radius_m: f64,
+    map_follow_age_s: f64,
+}
+
+impl TerrainMap {
+    /// An empty map.
+    pub fn new(cfg: &AgentConfig) -> Result<Self, mapping::MapError> {
+        let p = &cfg.profile;
+        let sc = &cfg.control.safety;
+        Ok(Self {
+            mapper: mapping::Mapper::new(cfg.mapper.clone())?,
+            planner: cfg.planner.clone(),
+            body: Body {
+                footprint_radius_m: 0.5 * p.length_m.max(p.width_m),
+                stop_reach_m: 0.5 * sc.body_width_m + sc.stop_side_m,
+                corridor_radius_m: 0.5 * p.width_m + cfg.repeat.corridor_margin_m,
+            },
+            corridor_rule: CorridorRule {
+                new_obstacle_rise_m: cfg.repeat.new_obstacle_rise_m as f32,
+                newest_evidence_min_points: cfg.repeat.newest_evidence_min_points,
+            },
+            map_follow_radius_m: cfg.gnss.map_follow_radius_m,
+            map_follow_age_s: cfg.gnss.map_follow_age_s,
+        })
+    }
+
+    /// Maps one sweep (`scan` in the lidar frame at `pose_map_lidar`) seen from the robot at
+    /// `pose`.
+    pub fn update(
+        &mut self,
+        scan: &Scan,
+        pose_map_lidar: &nalgebra::Isometry3<f64>,
+        pose: &PoseMap,
+    ) -> Result<MapUpdate, mapping::MapError> {
+        let u = self
+            .mapper
+            .update_scan(scan, pose_map_lidar, &robot_pose(pose), scan.stamp_s)?;
+        Ok(MapUpdate {
+            tiles: u.tiles,
+            classified_cells: u.classified_cells,
+            class_changes: u.class_changes,
+        })
+    }
+
+    /// Maps a sweep already in the map frame (`points_map`, seen from `sensor_m`) with the
+    /// robot at `robot`, both given from outside: the truth-pose upper bound of an evaluation.
+    pub fn update_at(
+        &mut self,
+        points_map: Vec<[f32; 3]>,
+        sensor_m: [f64; 3],
+        robot: &mapping::RobotPose,
+        t_s: f64,
+    ) -> Result<mapping::UpdateReport, mapping::MapError> {
+        self.mapper.update_sweep(points_map, sensor_m, robot, t_s)
+    }
+
+    /// The map frame moved (a GNSS or gravity correction): the heights seen recently near the
+    /// robot follow it, so the correction itself draws no false steps between old and new
+    /// sweeps; older cells keep the frame they were seen in.
+    pub fn follow_frame(&mut self, shift: &FrameShift) {
+        self.mapper
+            .follow_frame(shift, self.map_follow_radius_m, self.map_follow_age_s);
+    }
+
+    /// The planning window around `pose` and the mapper's cells in it: what both the planning
+    /// grid and a route's corridor grid are built from (read once per cycle).
+    pub fn window(&self, pose: &Pose2) -> (GridWindow, mapping::PlannerView) {
+        let window = GridWindow::centred(
+            self.mapper.lattice(),
+            pose.x_m,
+            pose.y_m,
+            self.planner.num_of_grid_cells,
+        );
+        let view = self
+            .mapper
+            .view(window.min_cx, window.min_cy, window.width, window.height);
+        (window, view)
+    }
+
+    /// The planning grid around `pose`, with a lasting stop at `stop_m` stamped in.
+    pub fn plan_grid(&self, pose: &Pose2, stop_m: Option<(f64, f64)>) -> PlanGrid {
+        let (window, view) = self.window(pose);
+        self.plan_grid_in(pose, &window, &view, stop_m)
+    }
+
+    /// [`TerrainMap::plan_grid`] over a window already read.
+    pub fn plan_grid_in(
+        &self,
+        pose: &Pose2,
+        window: &GridWindow,
+        view: &mapping::PlannerView,
+        stop_m: Option<(f64, f64)>,
+    ) -> PlanGrid {
+        let rule = CostRule::from_config(&self.planner);
+        let mut grid = PlanGrid::from_cells(window, &rule, |cx, cy| view.get(cx, cy));
+        let r_m = self.body.footprint_radius_m;
+        let robot = (pose.x_m, pose.y_m);
+        layers::clear_footprint(&mut grid, window, robot, r_m, |cx, cy| {
+            view.get(cx, cy).state
+        });
+        if let Some(at) = stop_m {
+            let s = grid.cell_size_m();
+            layers::stamp_blocked_disc(
+                &mut grid,
+                at,
+                self.body.stop_reach_m + s,
+                Some((robot, r_m + 0.5 * s)),
+            );
+        }
+        grid
+    }
+
+    /// The grid a taught route's corridor is checked on (see [`layers::corridor`]), with a
+    /// lasting stop at `stop_m` stamped in: with the teach-time view, only obstacles standing
+    /// higher than at teach time block.
+    pub fn corridor_grid(
+        &self,
+        window: &GridWindow,
+        view: &mapping::PlannerView,
+        taught: Option<&TeachView>,
+        stop_m: Option<(f64, f64)>,
+    ) -> PlanGrid {
+        let rise = self.corridor_rule.new_obstacle_rise_m;
+        let mut grid = layers::corridor(window, self.body.corridor_radius_m, |cx, cy| {
+            view.get(cx, cy).state == CellState::Obstacle
+                && taught.is_none_or(|v| v.is_new_obstacle(cx, cy, self.robust_top_m(cx, cy), rise))
+        });
+        if let Some(at) = stop_m {
+            let s = grid.cell_size_m();
+            layers::stamp_blocked_disc(&mut grid, at, self.body.stop_reach_m + s, None);
+        }
+        grid
+    }
+
+    /// How far either side of a taught route its corridor reaches, metres.
+    pub fn corridor_radius_m(&self) -> f64 {
+        self.body.corridor_radius_m
+    }
+
+    /// The teach-time view of the cells a repeat's corridor check can reach along `line_m`.
+    pub fn capture_teach_view(&self, line_m: &[(f64, f64)]) -> TeachView {
+        let m = &self.mapper;
+        TeachView::capture(
+            line_m,
+            self.body.corridor_radius_m,
+            &m.lattice(),
+            |cx, cy| {
+                let (ground, (_, top)) = (m.height_m(cx, cy)?, m.height_range(cx, cy)?);
+                Some(TaughtCell {
+                    obstacle: m.class(cx, cy).is_obstacle(),
+                    ground_m: ground as f32,
+                    top_m: top,
+                })
+            },
+        )
+    }
+
+    /// How high a cell's evidence stands, robust to a stray return or two: its highest point,
+    /// but no more than two standard deviations above its mean (a car or a trunk fills its
+    /// cells with returns; a single point 30 cm up in grass does not). When the cell's newest
+    /// evidence epoch alone holds `newest_evidence_min_points` returns, it is judged on that
+    /// epoch: what stands there now (a person who crossed the route a minute ago left returns in
+    /// the older epoch that the newer one, all ground, contradicts).
+    pub fn robust_top_m(&self, cx: i64, cy: i64) -> Option<f32> {
+        let newest = self.mapper.newest_height_stats(cx, cy);
+        let s = if newest.n >= self.corridor_rule.newest_evidence_min_points {
+            newest
+        } else {
+            self.mapper.height_stats(cx, cy)
+        };
+        (s.n > 0).then(|| s.max_m.min(s.mean_m + 2.0 * s.var_m2.sqrt()) as f32)
+    }
+
+    /// Logs (debug) the obstacle cells within the corridor's reach of a blocked route point,
+    /// with why each is what it is.
+    pub fn log_blocking_cells(&self, at_m: (f64, f64), taught: Option<&TeachView>) {
+        if !tracing::enabled!(tracing::Level::DEBUG) {
+            return;
+        }
+        let lattice = self.mapper.lattice();
+        let (cx, cy) = lattice.cell_of(at_m.0, at_m.1);
+        let r = (self.body.corridor_radius_m / lattice.cell_size_f64()).ceil() as i64;
+        for dy in -r..=r {
+            for dx in -r..=r {
+                if self.mapper.class(cx + dx, cy + dy).is_obstacle() {
+                    tracing::debug!(
+                        "repeat: blocking {}; at teach time {:?}; top now {:?}",
+                        self.mapper.describe(cx + dx, cy + dy),
+                        taught.and_then(|v| v.get(cx + dx, cy + dy)),
+                        self.robust_top_m(cx + dx, cy + dy)
+                    );
+                }
+            }
+        }
+    }
+
+    /// The lattice tiles live on.
+    pub fn lattice(&self) -> Lattice {
+        self.mapper.lattice()
+    }
+
+    /// Every current tile (for a late-joining station).
+    pub fn tiles(&self) -> Vec<Tile> {
+        self.mapper.tiles()
+    }
+
+    /// The mapper (evaluation, rendering).
+    pub fn mapper(&self) -> &mapping::Mapper {
+        &self.mapper
+    }
+}

@@ -1,0 +1,118 @@
+//! The agent's configuration files: `config/robot.toml`, `slam.toml`, `mapper.toml`,
+//! `planner.toml`, `control.toml` and `mission.toml`, each optional (every value has the
+//! methods.md default in code), read here and nowhere else.
+
+use agent::{AgentConfig, MissionFile};
+use std::path::{Path, PathBuf};
+
+/// Why the configuration could not be loaded.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ConfigError {
+    /// A file could not be read.
+    #[error("reading {path}: {source}")]
+    Io {
+        /// File.
+        path: String,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// A file has an unknown key or a bad value.
+    #[error("{path}: {msg}")]
+    Parse {
+        /// File.
+        path: String,
+        /// What is wrong (names the key).
+        msg: String,
+    },
+}
+
+/// Reads one TOML file of `dir` into `T`; a missing file gives the defaults.
+pub fn load<T: serde::de::DeserializeOwned + Default>(
+    dir: &Path,
+    name: &str,
+) -> Result<T, ConfigError> {
+    let path = dir.join(name);
+    if !path.exists() {
+        return Ok(T::default());
+    }
+    let text = std::fs::read_to_string(&path).map_err(|source| ConfigError::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
+    toml::from_str(&text).map_err(|e| ConfigError::Parse {
+        path: path.display().to_string(),
+        msg: e.to_string(),
+    })
+}
+
+/// The `config/` folder of the workspace, found from the current directory or the executable.
+pub fn default_config_dir() -> PathBuf {
+    let candidates = [
+        std::env::current_dir().ok(),
+        std::env::current_exe()
+            .ok()
+            .and_then(|e| e.parent().map(Path::to_path_buf)),
+    ];
+    for start in candidates.into_iter().flatten() {
+        for dir in start.ancestors() {
+            let c = dir.join("config");
+            if c.join("robot.toml").exists() {
+                return c;
+            }
+        }
+    }
+    PathBuf::from("config")
+}
+
+/// Loads the agent's configuration from `dir` (missing files keep the defaults).
+pub fn load_agent_config(dir: &Path) -> Result<AgentConfig, ConfigError> {
+    Ok(AgentConfig::from_parts(
+        load(dir, "robot.toml")?,
+        load(dir, "slam.toml")?,
+        load(dir, "mapper.toml")?,
+        load(dir, "planner.toml")?,
+        load(dir, "control.toml")?,
+        load::<MissionFile>(dir, "mission.toml")?,
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use agent::localiser::gnss::GnssConfig;
+    use agent::mission::navigate::NavConfig;
+    use agent::mission::repeat::RepeatConfig;
+    use agent::mission::teach::TeachConfig;
+
+    fn shipped() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../config")
+    }
+
+    #[test]
+    fn shipped_config_loads() {
+        let c = load_agent_config(&shipped()).unwrap();
+        assert_eq!(c.slam.sensor.lidar_xyz_m, c.profile.lidar.xyz_m);
+        assert!((c.deadman_s - 0.3).abs() < 1e-12);
+    }
+
+    #[test]
+    fn shipped_control_and_mission_files_are_the_code_defaults() {
+        // The files document the defaults; a change to one must be made to both.
+        let control: control::Config = load(&shipped(), "control.toml").unwrap();
+        assert_eq!(control, control::Config::default());
+        let mission: MissionFile = load(&shipped(), "mission.toml").unwrap();
+        assert_eq!(mission.navigate, NavConfig::default());
+        assert_eq!(mission.teach, TeachConfig::default());
+        assert_eq!(mission.repeat, RepeatConfig::default());
+        assert_eq!(mission.gnss, GnssConfig::default());
+    }
+
+    #[test]
+    fn unknown_keys_name_the_file() {
+        let d = tempfile::tempdir().unwrap();
+        std::fs::write(d.path().join("mission.toml"), "bogus = 1\n").unwrap();
+        let e = load_agent_config(d.path()).unwrap_err().to_string();
+        assert!(e.contains("mission.toml") && e.contains("bogus"), "{e}");
+    }
+}
