@@ -25,9 +25,10 @@ use crate::mission::{Event, MissionMachine, Mode, Outcome, Phase, Repeat};
 use crate::status::{AgentStatus, PoseEstimate, RouteProgress};
 use crate::terrain::TerrainMap;
 use common::command::{Refusal, RefusalCode};
-use common::grid::{Lattice, Tile};
+use common::grid::{Lattice, Tile, TileIndex};
 use common::msg::Datum;
 use sensing::{GnssSentence, ImuSample, OdomSample, Scan};
+use std::collections::BTreeSet;
 
 /// What one sweep did.
 #[derive(Clone, Debug, Default)]
@@ -66,7 +67,8 @@ pub struct Agent {
     driver: Driver,
     /// The local traversability seen while teaching, by route id (this session's routes).
     teach_views: Vec<(String, TeachView)>,
-    pending_tiles: Vec<Tile>,
+    /// Tiles whose cells changed since they were last asked for.
+    changed_tiles: BTreeSet<TileIndex>,
     /// The grid changed since the path was last checked against it.
     path_dirty: bool,
     taught: Option<TaughtRoute>,
@@ -93,7 +95,7 @@ impl Agent {
             mission: MissionMachine::new(Navigator::new(cfg.nav.clone(), cfg.planner.clone())),
             driver,
             teach_views: Vec::new(),
-            pending_tiles: Vec::new(),
+            changed_tiles: BTreeSet::new(),
             path_dirty: false,
             taught: None,
             last_plan_t_s: f64::NEG_INFINITY,
@@ -186,7 +188,7 @@ impl Agent {
             ) {
                 Ok(u) => {
                     rep.classified_cells = u.classified_cells;
-                    self.pending_tiles.extend(u.tiles);
+                    self.changed_tiles.extend(u.changed_tiles);
                     self.path_dirty |= u.class_changes > 0;
                 }
                 Err(e) => self.last_error = Some(format!("mapping: {e}")),
@@ -233,7 +235,7 @@ impl Agent {
         t_s: f64,
     ) -> Result<mapping::UpdateReport, mapping::MapError> {
         let u = self.terrain.update_at(points_map, sensor_m, robot, t_s)?;
-        self.pending_tiles.extend(u.tiles.iter().cloned());
+        self.changed_tiles.extend(u.changed_tiles.iter().copied());
         Ok(u)
     }
 
@@ -680,12 +682,20 @@ impl Agent {
         }
     }
 
-    /// Changed tiles since the last call (already versioned by the mapper).
-    pub fn take_tiles(&mut self) -> Vec<Tile> {
-        std::mem::take(&mut self.pending_tiles)
+    /// The tiles whose cells changed since the last call, sorted (what is published when is
+    /// the publisher's policy).
+    pub fn take_changed_tiles(&mut self) -> Vec<TileIndex> {
+        std::mem::take(&mut self.changed_tiles)
+            .into_iter()
+            .collect()
     }
 
-    /// All current tiles (for a late-joining station).
+    /// The current cells of one tile.
+    pub fn tile_cells(&self, index: TileIndex) -> Option<&[common::grid::Cell]> {
+        self.terrain.tile_cells(index)
+    }
+
+    /// Every current tile.
     pub fn all_tiles(&self) -> Vec<Tile> {
         self.terrain.tiles()
     }
@@ -713,6 +723,11 @@ impl Agent {
     /// The mapper (evaluation, rendering).
     pub fn mapper(&self) -> &mapping::Mapper {
         self.terrain.mapper()
+    }
+
+    /// The mapper, taking the agent apart (evaluation's last step).
+    pub fn into_mapper(self) -> mapping::Mapper {
+        self.terrain.into_mapper()
     }
 
     /// The mission state machine (evaluation).

@@ -74,21 +74,13 @@ impl AgentConfig {
     /// size) from the robot profile so it is written once.
     pub fn from_parts(
         profile: common::robot::RobotProfile,
-        mut slam: slam::Config,
-        mut mapper: mapping::Config,
+        slam: slam::Config,
+        mapper: mapping::Config,
         planner: planning::PlannerConfig,
         control: control::Config,
         mission: MissionFile,
     ) -> Self {
-        slam.sensor.lidar_xyz_m = profile.lidar.xyz_m;
-        slam.sensor.lidar_rpy_rad = profile.lidar.rpy_deg.map(f64::to_radians);
-        mapper.sensor_height_m = profile.lidar.xyz_m[2];
-        mapper.footprint_length_m = profile.length_m;
-        mapper.footprint_width_m = profile.width_m;
-        mapper.h_r_m = profile.height_m;
-        // mapper.max_step_m stays the mapper's own: it is the step test's threshold, set below
-        // the profile's unclimbable step so that a 10 cm curb measured at 9 cm still counts.
-        Self {
+        let mut c = Self {
             profile,
             slam,
             mapper,
@@ -101,6 +93,29 @@ impl AgentConfig {
             datum: None,
             deadman_s: mission.deadman_s.unwrap_or(0.3),
             safety_scan_timeout_s: mission.safety_scan_timeout_s.unwrap_or(0.35),
-        }
+        };
+        c.derive_from_profile();
+        c
+    }
+
+    /// The same configuration with another mapper configuration (`map eval --config`).
+    pub fn with_mapper(mut self, mapper: mapping::Config) -> Self {
+        self.mapper = mapper;
+        self.derive_from_profile();
+        self
+    }
+
+    /// Writes what the robot profile says about the other parts into them, so it is written
+    /// once: the lidar mount (SLAM, mapper) and the body (mapper).
+    fn derive_from_profile(&mut self) {
+        let p = &self.profile;
+        self.slam.sensor.lidar_xyz_m = p.lidar.xyz_m;
+        self.slam.sensor.lidar_rpy_rad = p.lidar.rpy_deg.map(f64::to_radians);
+        self.mapper.sensor_height_m = p.lidar.xyz_m[2];
+        self.mapper.footprint_length_m = p.length_m;
+        self.mapper.footprint_width_m = p.width_m;
+        self.mapper.h_r_m = p.height_m;
+        // mapper.max_step_m stays the mapper's own: it is the step test's threshold, set below
+        // the profile's unclimbable step so that a 10 cm curb measured at 9 cm still counts.
     }
 }

@@ -17,7 +17,7 @@
 //! let mut pts = Vec::new();
 //! for i in 0..200 { for j in 0..200 { pts.push([i as f32 * 0.05 - 5.0, j as f32 * 0.05 - 5.0, 0.0]); } }
 //! let rep = m.update_points(pts, &RobotPose::default(), 0.0, Evidence::Scan).unwrap();
-//! assert!(!rep.tiles.is_empty());
+//! assert!(!rep.changed_tiles.is_empty());
 //! assert_eq!(m.cell(10, 10).state, common::grid::CellState::Traversable);
 //! ```
 #![deny(missing_docs)]

@@ -78,9 +78,8 @@ pub enum Evidence {
 /// What one update did.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct UpdateReport {
-    /// Tiles whose content changed (and whose rate limit allowed publishing), sorted by index,
-    /// each with its version already increased.
-    pub tiles: Vec<Tile>,
+    /// Tiles whose output cells changed in this update, sorted.
+    pub changed_tiles: Vec<TileIndex>,
     /// Points received.
     pub points_in: usize,
     /// Points dropped: not finite.
@@ -351,10 +350,8 @@ struct TileSlot {
     ground: Vec<f32>,
     /// The current output cells.
     live: Vec<Cell>,
-    /// The last published tile (version and cells).
-    published: Tile,
+    /// An output cell changed since the tile was last handed out as changed.
     changed: bool,
-    last_publish_s: f64,
 }
 
 /// The beams of one sweep over one cell.
@@ -515,12 +512,6 @@ const FAR_TERRAIN_SLACK_M: f64 = 0.5;
 /// Points this far above their cell's lowest return in the sweep go through the isolated-point
 /// filter; lower ones are ground and cannot raise an obstacle on their own, metres.
 const SUSPECT_ABOVE_M: f32 = 0.04;
-/// Tiles are republished at most this often (architecture.md: at most 2 Hz per tile; 1 Hz
-/// halves the bandwidth while driving, and the planner reads the live grid, not tiles).
-const TILE_MIN_INTERVAL_S: f64 = 1.0;
-/// The published height only follows the live one when it moved this much: sensor noise on a
-/// cell mean must not republish a tile every scan.
-const HEIGHT_HYSTERESIS_CM: i16 = 3;
 
 impl Mapper {
     /// A mapper with an empty grid.
@@ -885,7 +876,7 @@ impl Mapper {
         }
 
         self.reclassify(dirty, robot, &mut rep);
-        rep.tiles = self.take_tiles(t_s, false);
+        rep.changed_tiles = self.take_changed_tiles();
         Ok(rep)
     }
 
@@ -971,11 +962,6 @@ impl Mapper {
             r.z_m += dz_at(r.x_m, r.y_m, r.z_m);
         }
         moved
-    }
-
-    /// Publishes every changed tile now, ignoring the rate limit.
-    pub fn flush_tiles(&mut self, t_s: f64) -> Vec<Tile> {
-        self.take_tiles(t_s, true)
     }
 
     /// Marks the cells of the window that this sweep's beams crossed inside the headroom band:
@@ -1599,34 +1585,21 @@ impl Mapper {
         let n = self.lattice.tile_cells as usize;
         let k = r as usize * n + c as usize;
         let slot = &mut self.slots[s];
-        slot.live[k] = cell;
-        let p = &slot.published.cells[k];
-        if p.state != cell.state
-            || p.cost != cell.cost
-            || (p.height_cm.wrapping_sub(cell.height_cm)).abs() >= HEIGHT_HYSTERESIS_CM
-        {
+        if slot.live[k] != cell {
+            slot.live[k] = cell;
             slot.changed = true;
         }
     }
 
-    fn take_tiles(&mut self, t_s: f64, force: bool) -> Vec<Tile> {
-        let mut out = Vec::new();
-        for slot in &mut self.slots {
-            if slot.changed
-                && (force
-                    || t_s - slot.last_publish_s >= TILE_MIN_INTERVAL_S
-                    || slot.published.version == 0)
-            {
-                slot.changed = false;
-                slot.last_publish_s = t_s;
-                slot.published.version += 1;
-                // Cells whose change was below the hysteresis keep their published height so the
-                // next comparison is against what consumers hold.
-                slot.published.cells.clone_from(&slot.live);
-                out.push(slot.published.clone());
-            }
-        }
-        out.sort_by_key(|t| t.index);
+    /// The tiles whose output cells changed since the last call, sorted. What is published
+    /// when, with which version, is the consumer's policy, not the mapper's.
+    fn take_changed_tiles(&mut self) -> Vec<TileIndex> {
+        let mut out: Vec<TileIndex> = self
+            .slots
+            .iter_mut()
+            .filter_map(|s| std::mem::take(&mut s.changed).then_some(s.index))
+            .collect();
+        out.sort_unstable();
         out
     }
 
@@ -1932,9 +1905,7 @@ impl Mapper {
                     data: vec![CellData::default(); n * n],
                     ground: vec![f32::INFINITY; n * n],
                     live: vec![Cell::UNKNOWN; n * n],
-                    published: Tile::new(t, self.lattice),
                     changed: false,
-                    last_publish_s: f64::NEG_INFINITY,
                 });
                 self.slot_of.insert(t, self.slots.len() - 1);
                 self.slots.len() - 1
@@ -1973,7 +1944,8 @@ impl Mapper {
         }
     }
 
-    /// The current content of every tile held (live cells, last published version), sorted.
+    /// The current content of every tile held, sorted (version 0: versions count publications,
+    /// which the publisher does).
     pub fn tiles(&self) -> Vec<Tile> {
         let mut v: Vec<Tile> = self
             .slots
@@ -1981,12 +1953,17 @@ impl Mapper {
             .map(|s| Tile {
                 index: s.index,
                 lattice: self.lattice,
-                version: s.published.version,
+                version: 0,
                 cells: s.live.clone(),
             })
             .collect();
         v.sort_by_key(|t| t.index);
         v
+    }
+
+    /// The current output cells of one tile (row-major, row 0 southmost), if the tile is held.
+    pub fn tile_cells(&self, index: TileIndex) -> Option<&[Cell]> {
+        self.slot(index).map(|s| self.slots[s].live.as_slice())
     }
 
     /// The planner's window (`num_of_grid_cells` square) centred on the last robot pose.

@@ -3,7 +3,6 @@
 use crate::synth::{cast_scan, LidarSpec, Rng};
 use crate::{Class, Config, Evidence, Mapper, RobotPose};
 use common::grid::{decode_tile, encode_tile, wire_tile, CellState, TileIndex};
-use std::collections::BTreeMap;
 
 const SENSOR_H: f64 = 0.7;
 
@@ -288,33 +287,32 @@ fn incremental_equals_full_reclassification() {
 }
 
 #[test]
-fn tile_versions_are_monotonic_and_tiles_round_trip() {
+fn changed_tiles_are_reported_once_and_tiles_round_trip() {
     let mut m = Mapper::new(Config::default()).unwrap();
     let reps = drive(&mut m, &walker, &line((-3.0, 0.0), (3.0, 0.0), 0.0, 6.0));
-    let mut last: BTreeMap<TileIndex, u64> = BTreeMap::new();
-    let mut n = 0;
+    let changed: Vec<TileIndex> = reps.iter().flat_map(|r| r.changed_tiles.clone()).collect();
+    assert!(changed.len() > 4, "{changed:?}");
     for r in &reps {
-        for t in &r.tiles {
-            let prev = last.insert(t.index, t.version).unwrap_or(0);
-            assert!(
-                t.version > prev,
-                "tile {:?}: {} after {}",
-                t.index,
-                t.version,
-                prev
-            );
-            assert_eq!(decode_tile(&encode_tile(t)).unwrap(), wire_tile(t));
-            n += 1;
-        }
+        assert!(
+            r.changed_tiles.windows(2).all(|w| w[0] < w[1]),
+            "sorted, once"
+        );
     }
-    assert!(n > 4);
-    // At most one publication per tile per second (plus the first).
-    let per_tile = reps
-        .iter()
-        .flat_map(|r| r.tiles.iter().map(|t| t.index))
-        .filter(|i| *i == TileIndex { tx: 0, ty: 0 })
-        .count();
-    assert!(per_tile <= 6 + 1, "{per_tile}");
+    // Every tile with a known cell was reported changed at some point; all round-trip the codec.
+    for t in m.tiles() {
+        let known = t.cells.iter().any(|c| c.state != CellState::Unknown);
+        assert!(!known || changed.contains(&t.index), "{:?}", t.index);
+        assert_eq!(decode_tile(&encode_tile(&t)).unwrap(), wire_tile(&t));
+        assert_eq!(m.tile_cells(t.index), Some(t.cells.as_slice()));
+    }
+    // Nothing new (no points, the robot where it last stood): nothing reported.
+    let last = RobotPose {
+        x_m: 3.0,
+        z_m: walker(3.0, 0.0, 6.0),
+        ..Default::default()
+    };
+    let quiet = m.update_points(vec![], &last, 6.0, Evidence::Scan);
+    assert!(quiet.unwrap().changed_tiles.is_empty());
 }
 
 #[test]

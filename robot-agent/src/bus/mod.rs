@@ -8,6 +8,7 @@
 //! [`Command::Refused`] with the reason, so the agent can put it in its status.
 
 pub mod orpheus;
+pub mod tiles;
 pub mod translate;
 
 use std::collections::BTreeMap;

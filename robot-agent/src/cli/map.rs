@@ -141,21 +141,6 @@ fn load_config(path: Option<&Path>) -> anyhow::Result<Config> {
     Ok(cfg)
 }
 
-/// The mapper config: the file given, else the shipped config/mapper.toml, else the defaults.
-fn mapper_config(path: Option<&Path>) -> anyhow::Result<Config> {
-    match path {
-        Some(p) => load_config(Some(p)),
-        None => {
-            let shipped = crate::config::default_config_dir().join("mapper.toml");
-            if shipped.exists() {
-                load_config(Some(&shipped))
-            } else {
-                Ok(Config::default())
-            }
-        }
-    }
-}
-
 fn eval_options(
     scenario: &Path,
     config: Option<&Path>,
@@ -166,12 +151,14 @@ fn eval_options(
     let dir = crate::config::default_config_dir();
     let agent = crate::config::load_agent_config(&dir)
         .with_context(|| format!("loading {}", dir.display()))?;
+    let agent = match config {
+        Some(f) => agent.with_mapper(load_config(Some(f))?),
+        None => agent,
+    };
     let opts = map_eval::MapEvalOptions {
         seed,
         use_truth_poses,
-        mapper: mapper_config(config)?,
-        slam: agent.slam,
-        profile: agent.profile,
+        agent,
         ..Default::default()
     };
     Ok((scenario, opts))
@@ -339,7 +326,7 @@ fn probe(
         cy - 3,
         7,
         7,
-        &sim::LabelParams::from_profile(&opts.profile),
+        &sim::LabelParams::from_profile(&opts.agent.profile),
     );
     eprintln!(
         "probe ({}, {}) = cell ({cx}, {cy}); rows north to south",
@@ -454,6 +441,11 @@ fn replay(a: ReplayArgs) -> anyhow::Result<()> {
         None
     };
     let mut mapper = Mapper::new(cfg.clone())?;
+    let mut publisher = crate::bus::tiles::TilePublisher::new(
+        crate::bus::tiles::TilePolicy::default(),
+        mapper.lattice(),
+        0,
+    );
     let (mut ms_total, mut ms_max, mut tiles_out, mut bytes_out) = (0.0f64, 0.0f64, 0usize, 0usize);
     let mut path = Vec::new();
     for (i, f) in files.iter().take(n).enumerate() {
@@ -485,9 +477,9 @@ fn replay(a: ReplayArgs) -> anyhow::Result<()> {
         let ms = t0.elapsed().as_secs_f64() * 1e3;
         ms_total += ms;
         ms_max = ms_max.max(ms);
-        tiles_out += rep.tiles.len();
-        bytes_out += rep
-            .tiles
+        let published = publisher.publish(t_s, &rep.changed_tiles, |t| mapper.tile_cells(t), false);
+        tiles_out += published.len();
+        bytes_out += published
             .iter()
             .map(|t| encode_tile(t).len())
             .sum::<usize>();
@@ -496,7 +488,7 @@ fn replay(a: ReplayArgs) -> anyhow::Result<()> {
             ms,
             dirty = rep.dirty_cells,
             classified = rep.classified_cells,
-            tiles = rep.tiles.len(),
+            tiles = published.len(),
             "update"
         );
     }

@@ -1,6 +1,7 @@
 //! A simulated robot live on the Zenoh bus, in real time, until stopped.
 
 use super::{HeadlessOptions, Rig};
+use crate::bus::tiles::{TilePolicy, TilePublisher};
 use crate::bus::translate::{self, RuntimeCounters};
 use crate::bus::{BusConfig, BusHandle, Command};
 use agent::localiser::FrameKind;
@@ -16,21 +17,6 @@ use std::time::{Duration, Instant};
 const POSE_PERIOD_S: f64 = 0.1;
 /// Status publication period, seconds (2 Hz, and on change).
 const STATUS_PERIOD_S: f64 = 0.5;
-/// Cell stamps below this (2001-09-09 in Unix seconds) are session seconds, not Unix seconds.
-const UNIX_STAMP_FLOOR_S: u32 = 1_000_000_000;
-
-/// Turns the mapper's cell stamps (session seconds: the algorithms have no clock) into the Unix
-/// seconds of the wire (`common::grid::Cell::stamp_s`), so that the station's newer-evidence-wins
-/// merge compares evidence of robots whose sessions started at different times.
-pub fn stamps_to_unix(tile: &mut common::grid::Tile, session_start_unix_ms: u64) {
-    for c in &mut tile.cells {
-        if c.state != common::grid::CellState::Unknown && c.stamp_s < UNIX_STAMP_FLOOR_S {
-            let ms = session_start_unix_ms + u64::from(c.stamp_s) * 1000;
-            c.stamp_s = u32::try_from(ms / 1000).unwrap_or(u32::MAX);
-        }
-    }
-}
-
 /// Runs one simulated robot on the bus until `stop` is set (Ctrl-C) or the process is killed.
 pub fn run_live(
     scenario: &sim::Scenario,
@@ -51,6 +37,11 @@ pub fn run_live(
     let mut last_path: Vec<(f64, f64)> = Vec::new();
     let mut last_state = None;
     let mut scan_times: std::collections::VecDeque<f64> = Default::default();
+    let mut tiles = TilePublisher::new(
+        TilePolicy::default(),
+        rig.agent.lattice(),
+        rig.agent.unix_ms(0.0),
+    );
     while !stop.load(Ordering::Relaxed) {
         // Keep simulated time with the wall clock; if the CPU falls behind, time slows down
         // rather than the robot skipping sensor data.
@@ -92,9 +83,12 @@ pub fn run_live(
                 session_sent = true;
             }
         }
-        for mut tile in rig.agent.take_tiles() {
-            stamps_to_unix(&mut tile, rig.agent.unix_ms(0.0));
-            bus.publish_tile(tile.index, common::grid::encode_tile(&tile));
+        if ev.scan {
+            let changed = rig.agent.take_changed_tiles();
+            let agent = &rig.agent;
+            for tile in tiles.publish(t, &changed, |i| agent.tile_cells(i), false) {
+                bus.publish_tile(tile.index, common::grid::encode_tile(&tile));
+            }
         }
         if let Some(route) = rig.agent.take_taught_route() {
             bus.publish_route(&translate::route_to_wire(&route));
@@ -168,30 +162,5 @@ fn context(rig: &Rig) -> RobotContext {
                 min_m: (x0 as f64 * s, y0 as f64 * s),
                 max_m: ((x1 + 1) as f64 * s, (y1 + 1) as f64 * s),
             }),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use common::grid::{Cell, CellState, Lattice, Tile, TileIndex};
-
-    #[test]
-    fn session_stamps_become_unix_seconds_once() {
-        let mut t = Tile::new(TileIndex { tx: 0, ty: 0 }, Lattice::default());
-        t.cells[0] = Cell {
-            state: CellState::Obstacle,
-            stamp_s: 12,
-            ..Cell::UNKNOWN
-        };
-        t.cells[1] = Cell {
-            state: CellState::Traversable,
-            stamp_s: 1_790_000_000,
-            ..Cell::UNKNOWN
-        };
-        stamps_to_unix(&mut t, 1_780_000_000_500);
-        assert_eq!(t.cells[0].stamp_s, 1_780_000_012);
-        assert_eq!(t.cells[1].stamp_s, 1_790_000_000, "already Unix: kept");
-        assert_eq!(t.cells[2], Cell::UNKNOWN, "unknown cells stay never-seen");
     }
 }

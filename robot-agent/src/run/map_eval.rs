@@ -1,32 +1,33 @@
-//! Scoring the traversability mapper in the built-in world (`robot-agent map eval`): the
-//! scenario's `[drive]` polyline is driven by the scripted driver, every sweep goes through the
-//! mapper at the true or the SLAM pose, and the classification before inflation is compared with
-//! the world's truth labels over the cells the sensor observed.
+//! Scoring the traversability map in the built-in world (`robot-agent map eval`): the
+//! scenario's `[drive]` polyline is driven by the scripted driver while the robot agent runs its
+//! own pipeline on the simulated sensors (the same localiser, terrain map and grids as a live
+//! robot: SLAM with GNSS and IMU fusion), and the classification before inflation is compared
+//! with the world's truth labels over the cells the sensor observed. With `use_truth_poses` the
+//! sweeps are mapped at the simulator's true poses instead: the upper bound, labelled as such.
 
+use super::{HeadlessOptions, Rig, ScanMode};
+use agent::AgentConfig;
 use anyhow::Context;
-use common::grid::{encode_tile, CellState};
-use mapping::{Class, Mapper, RobotPose};
-use nalgebra::{Isometry3, Point3};
-use sensing::{Point, Scan};
+use common::grid::CellState;
+use mapping::{Class, Mapper};
 use serde::Serialize;
 use sim::labels::{REASON_HOLE, REASON_OBSTACLE, REASON_STEP};
-use std::time::Instant;
+use std::cell::RefCell;
+use std::rc::Rc;
 
 /// Options of one evaluation run.
 #[derive(Clone, Debug)]
 pub struct MapEvalOptions {
     /// Simulator seed (noise, nothing else: walkers follow their scripts).
     pub seed: u64,
-    /// Map at the simulator's true poses (de-skewed with the true motion) instead of SLAM's.
+    /// Map at the simulator's true poses (de-skewed with the true motion) instead of the
+    /// agent's own localisation: the upper bound.
     pub use_truth_poses: bool,
     /// Stop after this much simulated time even if the drive is not done, seconds.
     pub max_duration_s: f64,
-    /// Mapper parameters.
-    pub mapper: mapping::Config,
-    /// SLAM parameters (when not using truth poses).
-    pub slam: slam::Config,
-    /// Robot profile of the simulated robot (and of the truth labels).
-    pub profile: common::robot::RobotProfile,
+    /// The agent (its mapper, SLAM, GNSS handling, robot profile; the profile is also the
+    /// simulated robot's and the truth labels').
+    pub agent: AgentConfig,
     /// Ignore truth cells within this distance of where any walker went: the cells walkers
     /// crossed are scored separately (`walker_cells`, `walker_false_obstacles`).
     pub walker_margin_m: f64,
@@ -41,9 +42,7 @@ impl Default for MapEvalOptions {
             seed: 1,
             use_truth_poses: false,
             max_duration_s: 1200.0,
-            mapper: mapping::Config::default(),
-            slam: slam::Config::default(),
-            profile: common::robot::RobotProfile::default(),
+            agent: AgentConfig::default(),
             walker_margin_m: 0.0,
             tiles_out: None,
         }
@@ -89,9 +88,10 @@ pub struct MapEvalReport {
     pub one_sided_steps: usize,
     /// Cells whose stale evidence free space cleared, over the run.
     pub cleared_cells: usize,
-    /// Mean wall-clock time of one mapper update, milliseconds.
+    /// Mean wall-clock time of one sweep through the agent (localisation and mapping; mapping
+    /// alone with truth poses), milliseconds.
     pub ms_per_update: f64,
-    /// Worst update, milliseconds.
+    /// Worst sweep, milliseconds.
     pub ms_max: f64,
     /// Sweeps mapped.
     pub scans: usize,
@@ -109,16 +109,21 @@ pub struct MapEvalReport {
     pub walker_cells: usize,
     /// Of them, still marked as obstacles at the end.
     pub walker_false_obstacles: usize,
+    /// Whether the sweeps were mapped at the simulator's true poses (the upper bound) rather
+    /// than at the agent's own.
+    pub truth_poses: bool,
     /// SLAM fell back to its prior (0 with truth poses).
     pub slam_failures: usize,
-    /// Largest horizontal SLAM position error over the run, metres (0 with truth poses).
+    /// Largest horizontal error of the agent's pose over the run, metres (0 with truth poses).
     pub slam_max_error_m: f64,
-    /// Largest SLAM height error, metres.
+    /// Largest height error of the agent's pose, metres.
     pub slam_max_z_error_m: f64,
-    /// Largest SLAM tilt error (angle between estimated and true up axes), degrees.
+    /// Largest tilt error of the agent's pose (angle between estimated and true up axes), degrees.
     pub slam_max_tilt_error_deg: f64,
-    /// Mean SLAM tilt error, degrees.
+    /// Mean tilt error, degrees.
     pub slam_mean_tilt_error_deg: f64,
+    /// Sweeps left out of the map because their pose was not trusted.
+    pub scans_not_mapped: u64,
     /// Collisions of the scripted drive (the drive should have none).
     pub collisions: usize,
     /// [`common::grid::map_digest`] of the final map: equal digests, equal maps.
@@ -173,7 +178,7 @@ pub struct MapEvalProgress {
     pub done: f64,
 }
 
-/// Drives the scenario's `[drive]` and maps every sweep; returns the scores and the mapper.
+/// Drives the scenario's `[drive]` with the agent running; returns the scores and the map.
 pub fn run(
     scenario: &sim::Scenario,
     opts: &MapEvalOptions,
@@ -183,47 +188,56 @@ pub fn run(
         .drive
         .as_ref()
         .ok_or_else(|| anyhow::anyhow!("scenario {} has no [drive] polyline", scenario.name))?;
-    let mut mcfg = opts.mapper.clone();
-    mcfg.sensor_height_m = opts.profile.lidar.xyz_m[2];
-    mcfg.footprint_length_m = opts.profile.length_m;
-    mcfg.footprint_width_m = opts.profile.width_m;
-    mcfg.h_r_m = opts.profile.height_m;
-    let mut mapper = Mapper::new(mcfg)?;
-    let mut scfg = opts.slam.clone();
-    scfg.sensor.lidar_xyz_m = opts.profile.lidar.xyz_m;
-    scfg.sensor.lidar_rpy_rad = opts.profile.lidar.rpy_deg.map(f64::to_radians);
-    let mut slam = slam::Slam::new(scfg);
-    let sim_cfg = sim::SimConfig {
+    let headless = HeadlessOptions {
         seed: opts.seed,
-        robot: opts.profile.clone(),
-        ..sim::SimConfig::default()
+        ..HeadlessOptions::default()
     };
-    let mut simu = sim::Simulation::new(scenario, sim_cfg);
-    let lidar_ext = simu.lidar_extrinsic();
+    let mut rig = Rig::new(scenario, opts.agent.clone(), &headless, "eval")?;
+    rig.scan_mode = if opts.use_truth_poses {
+        ScanMode::TruthPoses
+    } else {
+        ScanMode::Localised
+    };
+    let write_error: Rc<RefCell<Option<anyhow::Error>>> = Rc::default();
+    if let Some(dir) = opts.tiles_out.clone() {
+        let err = write_error.clone();
+        let mut seq = 0usize;
+        rig.tile_sink = Some(Box::new(move |t| {
+            let path = dir.join(format!("{seq:06}-{}_{}.tile", t.index.tx, t.index.ty));
+            seq += 1;
+            let r = postcard::to_allocvec(t)
+                .map_err(anyhow::Error::from)
+                .and_then(|b| {
+                    std::fs::write(&path, b).with_context(|| format!("writing {}", path.display()))
+                });
+            if let Err(e) = r {
+                err.borrow_mut().get_or_insert(e);
+            }
+        }));
+    }
     let mut driver = sim::drive::PathDriver::new(&drive.points, drive.speed_mps);
     let mut rep = MapEvalReport {
         scenario: scenario.name.clone(),
+        truth_poses: opts.use_truth_poses,
         ..MapEvalReport::default()
     };
-    let dt = 0.01;
-    let mut map_from_slam: Option<Isometry3<f64>> = None;
-    let (mut tilt_sum, mut tilt_n) = (0.0f64, 0usize);
-    let (mut ms_sum, mut tile_bytes) = (0.0f64, 0usize);
     let mut walker_trace: Vec<(f64, f64)> = Vec::new();
-    let mut last = simu.truth_pose2();
+    let mut last = rig.sim.truth_pose2();
     let mut last_progress = 0.0;
     let n_vertices = drive.points.len().max(1) as f64;
-    while !driver.is_done() && simu.time_s() < opts.max_duration_s {
-        let (v, w) = driver.command(&simu.truth_pose2());
-        let out = simu.step(dt, v, w);
-        rep.collisions += out.collisions.len();
-        let p = simu.truth_pose2();
+    while !driver.is_done() && rig.t_s() < opts.max_duration_s {
+        let (v, w) = driver.command(&rig.sim.truth_pose2());
+        rig.drive_override = Some(agent::Cmd {
+            v_mps: v,
+            omega_rps: w,
+        });
+        let ev = rig.step();
+        rep.collisions += ev.collisions as usize;
+        rep.slam_failures += usize::from(ev.slam_failed);
+        let p = rig.sim.truth_pose2();
         rep.path_m += p.distance_to(&last);
         last = p;
-        if let Some(o) = out.odom {
-            slam.push_odometry(o);
-        }
-        for wk in simu.walkers() {
+        for wk in rig.sim.walkers() {
             if walker_trace
                 .last()
                 .is_none_or(|q| (q.0 - wk.x_m).hypot(q.1 - wk.y_m) > 0.1)
@@ -231,96 +245,41 @@ pub fn run(
                 walker_trace.push((wk.x_m, wk.y_m));
             }
         }
-        let Some(scan) = out.scan else { continue };
-        let t = scan.stamp_s;
-        let truth_base = simu.truth_pose_at(t).unwrap_or_else(|| simu.truth_pose());
-        let (points_map, origin, robot) = if opts.use_truth_poses {
-            let mid = simu
-                .truth_pose_at(t + 0.05)
-                .unwrap_or_else(|| simu.truth_pose())
-                * lidar_ext;
-            let o = mid.translation.vector;
-            (
-                deskew_with_truth(&simu, &scan, &lidar_ext),
-                [o.x, o.y, o.z],
-                robot_pose(&truth_base),
-            )
-        } else {
-            let o = match slam.process(&scan) {
-                Ok(o) => o,
-                Err(e) => {
-                    rep.slam_failures += 1;
-                    tracing::warn!("SLAM at {t:.2} s: {e}");
-                    continue;
-                }
-            };
-            rep.slam_failures += usize::from(o.diagnostics.fell_back_to_prior);
-            // The SLAM frame is anchored at the true first pose (what GNSS does on the robot),
-            // so the scores measure SLAM drift, not an arbitrary frame offset.
-            let anchor = *map_from_slam.get_or_insert(truth_base * o.pose_map_base.inverse());
-            let pose_lidar = anchor * o.pose_map_lidar;
-            let base = anchor * o.pose_map_base;
-            let err = (base.translation.vector - truth_base.translation.vector)
-                .xy()
-                .norm();
-            rep.slam_max_error_m = rep.slam_max_error_m.max(err);
-            let dz = (base.translation.vector.z - truth_base.translation.vector.z).abs();
-            rep.slam_max_z_error_m = rep.slam_max_z_error_m.max(dz);
-            // Tilt error: the angle between the estimated and the true up axis.
-            let up_est = base.rotation * nalgebra::Vector3::z();
-            let up_true = truth_base.rotation * nalgebra::Vector3::z();
-            let tilt = up_est.angle(&up_true).to_degrees();
-            rep.slam_max_tilt_error_deg = rep.slam_max_tilt_error_deg.max(tilt);
-            tilt_sum += tilt;
-            tilt_n += 1;
-            let pts = o.deskewed.as_deref().unwrap_or(&scan.points);
-            let org = pose_lidar.translation.vector;
-            (
-                transform(pts, &pose_lidar),
-                [org.x, org.y, org.z],
-                robot_pose(&base),
-            )
-        };
-        let t0 = Instant::now();
-        let u = mapper.update_sweep(points_map, origin, &robot, t)?;
-        rep.cleared_cells += u.cleared_cells;
-        let ms = t0.elapsed().as_secs_f64() * 1e3;
-        ms_sum += ms;
-        rep.ms_max = rep.ms_max.max(ms);
-        rep.scans += 1;
-        if let Some(dir) = &opts.tiles_out {
-            for (k, t) in u.tiles.iter().enumerate() {
-                let seq = rep.tiles_published + k;
-                let path = dir.join(format!("{seq:06}-{}_{}.tile", t.index.tx, t.index.ty));
-                std::fs::write(&path, postcard::to_allocvec(t)?)
-                    .with_context(|| format!("writing {}", path.display()))?;
-            }
+        if let Some(e) = write_error.borrow_mut().take() {
+            return Err(e);
         }
-        rep.tiles_published += u.tiles.len();
-        tile_bytes += u.tiles.iter().map(|t| encode_tile(t).len()).sum::<usize>();
-        let done = driver_progress(&driver, &drive.points, &p) / n_vertices;
-        if simu.time_s() - last_progress >= 1.0 {
-            last_progress = simu.time_s();
+        if ev.scan && rig.t_s() - last_progress >= 1.0 {
+            last_progress = rig.t_s();
             progress(MapEvalProgress {
-                t_s: simu.time_s(),
-                done,
+                t_s: rig.t_s(),
+                done: driver_progress(&drive.points, &p) / n_vertices,
             });
         }
     }
-    rep.duration_s = simu.time_s();
-    rep.slam_mean_tilt_error_deg = tilt_sum / tilt_n.max(1) as f64;
-    rep.ms_per_update = ms_sum / rep.scans.max(1) as f64;
-    rep.mean_tile_bytes = tile_bytes as f64 / rep.tiles_published.max(1) as f64;
-    rep.tile_bytes_per_s = tile_bytes as f64 / rep.duration_s.max(1e-9);
+    rep.duration_s = rig.t_s();
+    rep.scans = rig.scan.n as usize;
+    rep.ms_per_update = rig.scan.mean();
+    rep.ms_max = rig.scan.max;
+    rep.tiles_published = rig.tiles_published;
+    rep.mean_tile_bytes = rig.tile_bytes as f64 / rig.tiles_published.max(1) as f64;
+    rep.tile_bytes_per_s = rig.tile_bytes as f64 / rep.duration_s.max(1e-9);
+    rep.slam_max_error_m = rig.loc.xy_max_m;
+    rep.slam_max_z_error_m = rig.loc.z_max_m;
+    rep.slam_max_tilt_error_deg = rig.loc.tilt_max_deg;
+    rep.slam_mean_tilt_error_deg = rig.loc.tilt_mean_deg;
+    rep.scans_not_mapped = rig.agent.scans_not_mapped();
+    rep.cleared_cells = rig.agent.terrain().cleared_cells();
+    let mapper = rig.agent.mapper();
     score(
-        &mapper,
-        simu.world(),
-        &sim::LabelParams::from_profile(&opts.profile),
+        mapper,
+        rig.sim.world(),
+        &sim::LabelParams::from_profile(&opts.agent.profile),
         &walker_trace,
         &mut rep,
     );
     rep.map_digest = common::grid::map_digest(&mapper.tiles());
-    Ok((rep, mapper))
+    let Rig { agent, .. } = rig;
+    Ok((rep, agent.into_mapper()))
 }
 
 /// Scores the mapper's classes against the world's labels into `rep`.
@@ -537,11 +496,7 @@ struct Counts {
 }
 
 /// Roughly how many drive vertices are behind the robot (for progress only).
-fn driver_progress(
-    _d: &sim::drive::PathDriver,
-    points: &[[f64; 2]],
-    p: &common::geom::Pose2,
-) -> f64 {
+fn driver_progress(points: &[[f64; 2]], p: &common::geom::Pose2) -> f64 {
     let mut best = (f64::INFINITY, 0usize);
     for (k, q) in points.iter().enumerate() {
         let d = (q[0] - p.x_m).hypot(q[1] - p.y_m);
@@ -550,51 +505,4 @@ fn driver_progress(
         }
     }
     best.1 as f64
-}
-
-/// The mapper's robot pose from `map<-base_link` (base_link is on the ground under the centre).
-fn robot_pose(base: &Isometry3<f64>) -> RobotPose {
-    let t = base.translation.vector;
-    let fwd = base.rotation * nalgebra::Vector3::x();
-    RobotPose {
-        x_m: t.x,
-        y_m: t.y,
-        z_m: t.z,
-        yaw_rad: fwd.y.atan2(fwd.x),
-    }
-}
-
-fn transform(points: &[Point], pose: &Isometry3<f64>) -> Vec<[f32; 3]> {
-    let m = pose.to_homogeneous().cast::<f32>();
-    points
-        .iter()
-        .map(|p| {
-            let v = m * nalgebra::Vector4::new(p.x, p.y, p.z, 1.0);
-            [v.x, v.y, v.z]
-        })
-        .collect()
-}
-
-/// Every return at the true lidar pose of its own firing time (1 ms bins).
-fn deskew_with_truth(
-    simu: &sim::Simulation,
-    scan: &Scan,
-    lidar_ext: &Isometry3<f64>,
-) -> Vec<[f32; 3]> {
-    let mut poses: Vec<Option<nalgebra::Matrix4<f32>>> = vec![None; 201];
-    let fallback = simu.truth_pose() * lidar_ext;
-    scan.points
-        .iter()
-        .map(|p| {
-            let k = ((f64::from(p.t_s) * 1000.0).round().max(0.0) as usize).min(200);
-            let m = poses[k].get_or_insert_with(|| {
-                let t = scan.stamp_s + k as f64 * 1e-3;
-                (simu.truth_pose_at(t).map_or(fallback, |b| b * lidar_ext))
-                    .to_homogeneous()
-                    .cast::<f32>()
-            });
-            let q = m.transform_point(&Point3::new(p.x, p.y, p.z));
-            [q.x, q.y, q.z]
-        })
-        .collect()
 }

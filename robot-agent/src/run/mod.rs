@@ -109,6 +109,20 @@ impl Stat {
     }
 }
 
+/// How the rig's sweeps reach the agent's map.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ScanMode {
+    /// Through the agent's own pipeline: localiser, terrain map, safety stop (the product).
+    #[default]
+    Localised,
+    /// Mapped at the simulator's true poses, de-skewed with the true motion: the upper bound an
+    /// evaluation can compare the product against, never the product itself.
+    TruthPoses,
+}
+
+/// Where a rig hands each published tile (a corpus writer, a counter).
+pub type TileSink = Box<dyn FnMut(&common::grid::Tile)>;
+
 /// A simulator with an agent on it, stepped together.
 pub struct Rig {
     /// The world.
@@ -126,6 +140,19 @@ pub struct Rig {
     driven_m: f64,
     last_truth: (f64, f64),
     trajectory: Vec<(f64, f64)>,
+    /// How sweeps reach the map.
+    pub scan_mode: ScanMode,
+    /// When set, drives the plant instead of the agent's command (a scripted survey drive).
+    pub drive_override: Option<Cmd>,
+    /// Tiles the agent published so far, with their encoded bytes.
+    pub tiles_published: usize,
+    /// Encoded bytes of those tiles.
+    pub tile_bytes: usize,
+    /// When set, every published tile (exact) is handed here.
+    pub tile_sink: Option<TileSink>,
+    /// What the robot would publish, with the live robot's policy.
+    publisher: crate::bus::tiles::TilePublisher,
+    lidar_ext: nalgebra::Isometry3<f64>,
 }
 
 impl Rig {
@@ -161,7 +188,20 @@ impl Rig {
         )
         .map_err(|e| anyhow::anyhow!("mapper configuration: {e}"))?;
         let t = sim.truth_pose().translation.vector;
+        let lidar_ext = sim.lidar_extrinsic();
+        let publisher = crate::bus::tiles::TilePublisher::new(
+            crate::bus::tiles::TilePolicy::default(),
+            agent.lattice(),
+            now_ms,
+        );
         Ok(Self {
+            publisher,
+            scan_mode: ScanMode::Localised,
+            drive_override: None,
+            tiles_published: 0,
+            tile_bytes: 0,
+            tile_sink: None,
+            lidar_ext,
             sim,
             agent,
             cmd: Cmd::default(),
@@ -206,7 +246,8 @@ impl Rig {
     /// `override_cmd` replaces the agent's command (teach drives by teleop through the agent's
     /// own teleop path instead, so this is only for tests).
     pub fn step(&mut self) -> StepEvents {
-        let out = self.sim.step(SIM_DT_S, self.cmd.v_mps, self.cmd.omega_rps);
+        let drive = self.drive_override.unwrap_or(self.cmd);
+        let out = self.sim.step(SIM_DT_S, drive.v_mps, drive.omega_rps);
         let mut ev = StepEvents::default();
         if let Some(o) = out.odom {
             self.agent.on_odom(o);
@@ -219,9 +260,32 @@ impl Rig {
         }
         if let Some(scan) = &out.scan {
             let t0 = Instant::now();
-            self.agent.on_scan(scan);
+            match self.scan_mode {
+                ScanMode::Localised => ev.slam_failed = self.agent.on_scan(scan).slam_failed,
+                ScanMode::TruthPoses => {
+                    let (points, origin, robot) = self.truth_sweep(scan);
+                    if let Err(e) =
+                        self.agent
+                            .map_at_given_pose(points, origin, &robot, scan.stamp_s)
+                    {
+                        tracing::warn!("mapping at {:.2} s: {e}", scan.stamp_s);
+                    }
+                }
+            }
             self.scan.add(t0.elapsed().as_secs_f64() * 1e3);
             ev.scan = true;
+            let changed = self.agent.take_changed_tiles();
+            let agent = &self.agent;
+            let tiles =
+                self.publisher
+                    .publish(scan.stamp_s, &changed, |i| agent.tile_cells(i), false);
+            for t in tiles {
+                self.tiles_published += 1;
+                self.tile_bytes += common::grid::encode_tile(&t).len();
+                if let Some(sink) = self.tile_sink.as_mut() {
+                    sink(&t);
+                }
+            }
             // The agent's localisation against the truth, right after the scan.
             if let Some(est) = self.agent.localiser().pose_now() {
                 let truth = self.sim.truth_pose();
@@ -232,6 +296,9 @@ impl Rig {
                     .angle(&(truth.rotation * nalgebra::Vector3::z()))
                     .to_degrees();
                 self.loc.tilt_max_deg = self.loc.tilt_max_deg.max(tilt);
+                self.loc.scans += 1;
+                self.loc.tilt_mean_deg +=
+                    (tilt - self.loc.tilt_mean_deg) / f64::from(self.loc.scans);
                 if trace_enabled() {
                     eprintln!(
                         "trace scan t {:.1} {} mapped {}",
@@ -281,7 +348,53 @@ impl Rig {
 
     /// The command currently applied to the plant.
     pub fn cmd(&self) -> Cmd {
-        self.cmd
+        self.drive_override.unwrap_or(self.cmd)
+    }
+
+    /// A sweep at the true pose: every return at the true lidar pose of its own firing time
+    /// (1 ms bins), seen from the lidar's true position at mid-sweep, with the robot's true pose
+    /// at the sweep's stamp.
+    fn truth_sweep(&self, scan: &sensing::Scan) -> (Vec<[f32; 3]>, [f64; 3], mapping::RobotPose) {
+        let t = scan.stamp_s;
+        let base = self
+            .sim
+            .truth_pose_at(t)
+            .unwrap_or_else(|| self.sim.truth_pose());
+        let mid = self
+            .sim
+            .truth_pose_at(t + 0.05)
+            .unwrap_or_else(|| self.sim.truth_pose())
+            * self.lidar_ext;
+        let o = mid.translation.vector;
+        let mut poses: Vec<Option<nalgebra::Matrix4<f32>>> = vec![None; 201];
+        let fallback = self.sim.truth_pose() * self.lidar_ext;
+        let points = scan
+            .points
+            .iter()
+            .map(|p| {
+                let k = ((f64::from(p.t_s) * 1000.0).round().max(0.0) as usize).min(200);
+                let m = poses[k].get_or_insert_with(|| {
+                    let tk = scan.stamp_s + k as f64 * 1e-3;
+                    (self
+                        .sim
+                        .truth_pose_at(tk)
+                        .map_or(fallback, |b| b * self.lidar_ext))
+                    .to_homogeneous()
+                    .cast::<f32>()
+                });
+                let q = m.transform_point(&nalgebra::Point3::new(p.x, p.y, p.z));
+                [q.x, q.y, q.z]
+            })
+            .collect();
+        let b = base.translation.vector;
+        let fwd = base.rotation * nalgebra::Vector3::x();
+        let robot = mapping::RobotPose {
+            x_m: b.x,
+            y_m: b.y,
+            z_m: b.z,
+            yaw_rad: fwd.y.atan2(fwd.x),
+        };
+        (points, [o.x, o.y, o.z], robot)
     }
 
     /// The agent's pose against the truth for trace lines: position, and the error's
@@ -325,6 +438,10 @@ pub struct LocalisationError {
     pub z_max_m: f64,
     /// Angle between the estimated and the true up axis, degrees.
     pub tilt_max_deg: f64,
+    /// Mean of that angle over the sweeps, degrees.
+    pub tilt_mean_deg: f64,
+    /// Sweeps measured.
+    pub scans: u32,
 }
 
 /// What one [`Rig::step`] did.
@@ -334,6 +451,8 @@ pub struct StepEvents {
     pub scan: bool,
     /// The control loop ran.
     pub control: bool,
+    /// SLAM fell back to its prior (or failed) on this step's sweep.
+    pub slam_failed: bool,
     /// Collisions in this step.
     pub collisions: u32,
 }

@@ -11,7 +11,7 @@ use crate::config::AgentConfig;
 use crate::localiser::{FrameShift, PoseMap};
 use crate::mission::teach_view::{TaughtCell, TeachView};
 use common::geom::Pose2;
-use common::grid::{CellState, Lattice, Tile};
+use common::grid::{Cell, CellState, Lattice, Tile, TileIndex};
 use planning::{CostRule, GridWindow, PlanGrid, PlannerConfig};
 use sensing::Scan;
 
@@ -38,8 +38,8 @@ struct CorridorRule {
 /// What mapping one sweep did.
 #[derive(Clone, Debug, Default)]
 pub struct MapUpdate {
-    /// Tiles to publish (changed, within their rate limit).
-    pub tiles: Vec<Tile>,
+    /// Tiles whose cells changed.
+    pub changed_tiles: Vec<TileIndex>,
     /// Cells reclassified.
     pub classified_cells: usize,
     /// Cells whose class changed.
@@ -65,6 +65,7 @@ pub struct TerrainMap {
     corridor_rule: CorridorRule,
     map_follow_radius_m: f64,
     map_follow_age_s: f64,
+    cleared_cells: usize,
 }
 
 impl TerrainMap {
@@ -86,6 +87,7 @@ impl TerrainMap {
             },
             map_follow_radius_m: cfg.gnss.map_follow_radius_m,
             map_follow_age_s: cfg.gnss.map_follow_age_s,
+            cleared_cells: 0,
         })
     }
 
@@ -100,8 +102,9 @@ impl TerrainMap {
         let u = self
             .mapper
             .update_scan(scan, pose_map_lidar, &robot_pose(pose), scan.stamp_s)?;
+        self.cleared_cells += u.cleared_cells;
         Ok(MapUpdate {
-            tiles: u.tiles,
+            changed_tiles: u.changed_tiles,
             classified_cells: u.classified_cells,
             class_changes: u.class_changes,
         })
@@ -116,7 +119,14 @@ impl TerrainMap {
         robot: &mapping::RobotPose,
         t_s: f64,
     ) -> Result<mapping::UpdateReport, mapping::MapError> {
-        self.mapper.update_sweep(points_map, sensor_m, robot, t_s)
+        let u = self.mapper.update_sweep(points_map, sensor_m, robot, t_s)?;
+        self.cleared_cells += u.cleared_cells;
+        Ok(u)
+    }
+
+    /// Cells whose stale evidence free space cleared, since the start.
+    pub fn cleared_cells(&self) -> usize {
+        self.cleared_cells
     }
 
     /// The map frame moved (a GNSS or gravity correction): the heights seen recently near the
@@ -264,13 +274,23 @@ impl TerrainMap {
         self.mapper.lattice()
     }
 
-    /// Every current tile (for a late-joining station).
+    /// Every current tile.
     pub fn tiles(&self) -> Vec<Tile> {
         self.mapper.tiles()
+    }
+
+    /// The current cells of one tile.
+    pub fn tile_cells(&self, index: TileIndex) -> Option<&[Cell]> {
+        self.mapper.tile_cells(index)
     }
 
     /// The mapper (evaluation, rendering).
     pub fn mapper(&self) -> &mapping::Mapper {
         &self.mapper
+    }
+
+    /// The mapper, taking the terrain map apart.
+    pub fn into_mapper(self) -> mapping::Mapper {
+        self.mapper
     }
 }
