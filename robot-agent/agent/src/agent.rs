@@ -76,6 +76,10 @@ pub struct Agent {
     last_error: Option<String>,
     commands_refused: u32,
     scans_not_mapped: u64,
+    /// The last sweep's pose was trusted for mapping (depth frames follow it).
+    pose_trusted: bool,
+    base_from_depth: nalgebra::Isometry3<f64>,
+    depth_frames: u64,
 }
 
 impl Agent {
@@ -102,6 +106,9 @@ impl Agent {
             last_error: None,
             commands_refused: 0,
             scans_not_mapped: 0,
+            pose_trusted: false,
+            base_from_depth: cfg.profile.depth_camera.isometry(),
+            depth_frames: 0,
             cfg,
             id,
         })
@@ -172,6 +179,7 @@ impl Agent {
             }
         };
         rep.slam_failed = loc.fell_back;
+        self.pose_trusted = loc.trusted;
         for shift in &loc.shifts {
             self.terrain.follow_frame(shift);
         }
@@ -222,6 +230,41 @@ impl Agent {
             self.path_dirty = false;
         }
         rep
+    }
+
+    /// Processes one depth-camera frame (camera frame, the profile's `depth_camera` mount): its
+    /// points enter the traversability map like a sweep's, at the localiser's current pose, and
+    /// the safety gate, so a low obstacle only the camera sees stops or reroutes the robot.
+    pub fn on_depth(&mut self, frame: &Scan) -> Result<(), String> {
+        let Some(pose) = self.localiser.pose_now() else {
+            return Ok(());
+        };
+        let base = self.base_from_depth;
+        self.driver.on_depth_frame(
+            frame.stamp_s,
+            frame.points.iter().filter(|p| p.is_finite()).map(|p| {
+                let q =
+                    base * nalgebra::Point3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z));
+                (q.x, q.y, q.z)
+            }),
+        );
+        if !self.pose_trusted {
+            return Ok(());
+        }
+        let pose_map_cam = pose.iso * base;
+        let u = self
+            .terrain
+            .update(frame, &pose_map_cam, &pose)
+            .map_err(|e| format!("mapping a depth frame: {e}"))?;
+        self.depth_frames += 1;
+        self.changed_tiles.extend(u.changed_tiles);
+        self.path_dirty |= u.class_changes > 0;
+        Ok(())
+    }
+
+    /// Depth frames mapped so far.
+    pub fn depth_frames(&self) -> u64 {
+        self.depth_frames
     }
 
     /// Maps a sweep at a pose given from outside instead of the localiser's: the upper bound of

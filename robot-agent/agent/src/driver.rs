@@ -73,6 +73,9 @@ pub struct Driver {
     /// Since when (sweep time) the safety stop has held without a break, and where (map frame)
     /// the stop-zone point nearest the body stood in the last sweep.
     lasting_stop: Option<(f64, (f64, f64))>,
+    /// The depth camera's last verdict and its time: a second, short-range witness of the
+    /// space ahead (low obstacles under the LiDAR's lowest beam).
+    depth_safety: Option<(control::SafetyVerdict, f64)>,
     last_cmd: Cmd,
 }
 
@@ -91,6 +94,7 @@ impl Driver {
             safety: control::SafetyVerdict::default(),
             safety_t_s: f64::NEG_INFINITY,
             lasting_stop: None,
+            depth_safety: None,
             last_cmd: Cmd::default(),
             cfg,
         }
@@ -116,9 +120,25 @@ impl Driver {
         };
     }
 
-    /// Whether forward motion is barred at `t_s`: something in the stop zone, or no fresh sweep.
+    /// Checks one depth-camera frame's points (`base_link`, metres) against the stop zone. A
+    /// frame can only add a stop: the camera sees a narrow cone, so its empty view never clears
+    /// what the LiDAR saw.
+    pub fn on_depth_frame(
+        &mut self,
+        t_s: f64,
+        points_base: impl IntoIterator<Item = (f64, f64, f64)>,
+    ) {
+        let v = control::safety::check(&self.cfg.control.safety, points_base);
+        self.depth_safety = Some((v, t_s));
+    }
+
+    /// Whether forward motion is barred at `t_s`: something in the stop zone (LiDAR, or a fresh
+    /// depth frame), or no fresh sweep.
     pub fn stop_ahead(&self, t_s: f64) -> bool {
-        t_s - self.safety_t_s > self.cfg.safety_scan_timeout_s || self.safety.stop
+        let depth_stop = self
+            .depth_safety
+            .is_some_and(|(v, t)| v.stop && t_s - t <= self.cfg.safety_scan_timeout_s);
+        t_s - self.safety_t_s > self.cfg.safety_scan_timeout_s || self.safety.stop || depth_stop
     }
 
     /// The last sweep's verdict.

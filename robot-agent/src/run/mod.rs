@@ -6,6 +6,7 @@
 
 pub mod live;
 pub mod map_eval;
+pub mod robot;
 
 use agent::command::{Command, CommandKind, Direction, GoalTarget};
 use agent::mission::{Mode, Phase};
@@ -150,6 +151,9 @@ pub struct Rig {
     pub tile_bytes: usize,
     /// When set, every published tile (exact) is handed here.
     pub tile_sink: Option<TileSink>,
+    /// The rig runs the tile policy itself (evaluations); off when a bus loop publishes the
+    /// agent's changed tiles instead.
+    pub own_tiles: bool,
     /// What the robot would publish, with the live robot's policy.
     publisher: crate::bus::tiles::TilePublisher,
     lidar_ext: nalgebra::Isometry3<f64>,
@@ -201,6 +205,7 @@ impl Rig {
             tiles_published: 0,
             tile_bytes: 0,
             tile_sink: None,
+            own_tiles: true,
             lidar_ext,
             sim,
             agent,
@@ -274,11 +279,14 @@ impl Rig {
             }
             self.scan.add(t0.elapsed().as_secs_f64() * 1e3);
             ev.scan = true;
+        }
+        if ev.scan && self.own_tiles {
+            let stamp = out.scan.as_ref().map_or(self.sim.time_s(), |s| s.stamp_s);
             let changed = self.agent.take_changed_tiles();
             let agent = &self.agent;
-            let tiles =
-                self.publisher
-                    .publish(scan.stamp_s, &changed, |i| agent.tile_cells(i), false);
+            let tiles = self
+                .publisher
+                .publish(stamp, &changed, |i| agent.tile_cells(i), false);
             for t in tiles {
                 self.tiles_published += 1;
                 self.tile_bytes += common::grid::encode_tile(&t).len();
@@ -286,6 +294,8 @@ impl Rig {
                     sink(&t);
                 }
             }
+        }
+        if out.scan.is_some() {
             // The agent's localisation against the truth, right after the scan.
             if let Some(est) = self.agent.localiser().pose_now() {
                 let truth = self.sim.truth_pose();
