@@ -494,7 +494,13 @@ impl Inner {
             row: row.clone(),
             json: serde_json::to_string(&r).unwrap_or_default(),
         });
-        self.emit(json!({"type": "route", "route": row}).to_string());
+        // The browser refetches GET /api/routes on this event: tell it only once the row is
+        // committed (as the GPX import does), or the new route is missing until a reload.
+        let me = self.clone();
+        tokio::spawn(async move {
+            me.flush_store_async().await;
+            me.emit(json!({"type": "route", "route": row}).to_string());
+        });
     }
 
     fn on_liveliness(self: &Arc<Self>, key: &str, alive: bool) {

@@ -97,6 +97,7 @@ pub fn router(state: AppState, web: Option<PathBuf>) -> Router {
         .route("/api/robots/{robot}/route", post(cmd_route))
         .route("/api/ws", get(ws))
         .fallback(|| async { not_found("no such API endpoint") })
+        .layer(axum::middleware::from_fn(json_errors))
         .layer(axum::middleware::from_fn_with_state(state.clone(), auth))
         .with_state(state);
     let mut app = Router::new().merge(api);
@@ -138,6 +139,54 @@ async fn auth(State(st): State<AppState>, req: Request, next: Next) -> Response 
         }
     }
     next.run(req).await
+}
+
+/// Errors that axum itself produces (405 wrong method with an empty body, 413 body too large as
+/// plain text, 415, 422 ...) become `{"error": ...}` like every other API error, keeping their
+/// status and headers (e.g. `Allow`), so the UI can always show the reason.
+async fn json_errors(req: Request, next: Next) -> Response {
+    let method = req.method().clone();
+    let path = req.uri().path().to_string();
+    let res = next.run(req).await;
+    let status = res.status();
+    let is_json = res
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.starts_with("application/json"));
+    if !(status.is_client_error() || status.is_server_error()) || is_json {
+        return res;
+    }
+    let (mut parts, body) = res.into_parts();
+    let text = axum::body::to_bytes(body, 4096).await.unwrap_or_default();
+    let detail = String::from_utf8_lossy(&text).trim().to_string();
+    let reason = match (status, detail.is_empty()) {
+        (StatusCode::METHOD_NOT_ALLOWED, _) => {
+            let allow = parts
+                .headers
+                .get(header::ALLOW)
+                .and_then(|v| v.to_str().ok())
+                .unwrap_or("")
+                .to_string();
+            if allow.is_empty() {
+                format!("{method} is not allowed on {path}")
+            } else {
+                format!("{method} is not allowed on {path} (allowed: {allow})")
+            }
+        }
+        (_, false) => detail,
+        (_, true) => status
+            .canonical_reason()
+            .unwrap_or("request failed")
+            .to_string(),
+    };
+    let body = json!({ "error": reason }).to_string();
+    parts.headers.insert(
+        header::CONTENT_TYPE,
+        header::HeaderValue::from_static("application/json"),
+    );
+    parts.headers.remove(header::CONTENT_LENGTH);
+    Response::from_parts(parts, axum::body::Body::from(body))
 }
 
 async fn health(State(st): State<AppState>) -> Json<Value> {
@@ -539,10 +588,15 @@ async fn geo_convert(
 fn known_robot(st: &AppState, robot: &str) -> ApiResult<RobotId> {
     let id = RobotId::new(robot).map_err(|e| bad(e.to_string()))?;
     let f = st.inner.fleet.lock().unwrap_or_else(|p| p.into_inner());
-    if !f.robots.contains_key(robot) {
-        return Err(not_found(format!("unknown robot {robot}")));
+    match f.robots.get(robot) {
+        None => Err(not_found(format!("unknown robot {robot}"))),
+        // Zenoh would drop the command without a word: say so instead of "sent".
+        Some(r) if !r.online => Err(ApiError(
+            StatusCode::CONFLICT,
+            format!("robot {robot} is offline: command not sent"),
+        )),
+        Some(_) => Ok(id),
     }
-    Ok(id)
 }
 
 async fn put(st: &AppState, robot: &RobotId, topic: Topic, payload: Vec<u8>) -> ApiResult<()> {
