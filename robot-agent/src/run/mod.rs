@@ -17,8 +17,7 @@ use std::time::Instant;
 
 /// Simulator step, seconds (plant and sensor timing resolution).
 pub const SIM_DT_S: f64 = 0.01;
-/// Control period, seconds (20 Hz, methods.md §6).
-pub const CONTROL_DT_S: f64 = 0.05;
+pub use crate::runtime::CONTROL_DT_S;
 
 /// Options of a headless run.
 #[derive(Clone, Debug)]

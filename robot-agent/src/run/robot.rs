@@ -162,12 +162,7 @@ fn first_input(
     while !stop.load(Ordering::Relaxed) {
         match rx.recv_timeout(Duration::from_millis(50)) {
             Ok(SourceEvent::Input(input)) => {
-                let stamp = match &input {
-                    Input::Scan(s) | Input::Depth(s) => s.stamp_s,
-                    Input::Odom(o) => o.t_s,
-                    Input::Imu(i) => i.t_s,
-                    Input::Gnss(g) => g.t_s,
-                };
+                let stamp = input.stamp_s();
                 if !stamp.is_finite() || stamp < 0.0 {
                     continue;
                 }

@@ -45,7 +45,8 @@ impl Input {
         }
     }
 
-    fn stamp_s(&self) -> f64 {
+    /// The header stamp, seconds.
+    pub fn stamp_s(&self) -> f64 {
         match self {
             Input::Scan(s) | Input::Depth(s) => s.stamp_s,
             Input::Odom(o) => o.t_s,
