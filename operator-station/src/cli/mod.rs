@@ -11,6 +11,7 @@ use std::time::Duration;
 
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
+use common::command::{check_goal, CommandLimits, RobotContext};
 use common::keys::{self, RobotId, Topic};
 use common::msg::{self, GoalCmd, GoalTarget, Session, StopCmd};
 use zenoh::query::ConsolidationMode;
@@ -608,13 +609,8 @@ fn parse_pair(s: &str) -> anyhow::Result<(f64, f64)> {
     Ok((a, b))
 }
 
-async fn send_to_robot(
-    c: &ClientArgs,
-    robot: &str,
-    topic: Topic,
-    payload: Vec<u8>,
-) -> anyhow::Result<()> {
-    let rid = RobotId::new(robot)?;
+/// A session that has seen `robot` online.
+async fn robot_session(c: &ClientArgs, robot: &str) -> anyhow::Result<zenoh::Session> {
     let s = client_session(&c.z).await?;
     tokio::time::sleep(Duration::from_millis(300)).await;
     let alive = alive_robots(&s, Duration::from_secs_f64(c.wait_s.max(0.2))).await?;
@@ -622,13 +618,54 @@ async fn send_to_robot(
         let _ = s.close().await;
         bail!("robot {robot} is not online (seen: {alive:?})");
     }
-    s.put(keys::key(&rid, topic), payload)
+    Ok(s)
+}
+
+/// Sends one command and closes the session.
+async fn put_and_close(
+    s: zenoh::Session,
+    rid: &RobotId,
+    topic: Topic,
+    payload: Vec<u8>,
+) -> anyhow::Result<()> {
+    let r = s
+        .put(keys::key(rid, topic), payload)
         .congestion_control(zenoh::qos::CongestionControl::Block)
         .await
-        .map_err(|e| anyhow::anyhow!("zenoh put: {e}"))?;
+        .map_err(|e| anyhow::anyhow!("zenoh put: {e}"));
     tokio::time::sleep(Duration::from_millis(200)).await;
     let _ = s.close().await;
-    Ok(())
+    r
+}
+
+async fn send_to_robot(
+    c: &ClientArgs,
+    robot: &str,
+    topic: Topic,
+    payload: Vec<u8>,
+) -> anyhow::Result<()> {
+    let rid = RobotId::new(robot)?;
+    let s = robot_session(c, robot).await?;
+    put_and_close(s, &rid, topic, payload).await
+}
+
+/// The robot's position from one of its poses (it publishes them at 10 Hz), for the goal
+/// contract; empty when none comes within a second.
+async fn robot_context(s: &zenoh::Session, rid: &RobotId) -> RobotContext {
+    let Ok(sub) = s.declare_subscriber(keys::key(rid, Topic::Pose)).await else {
+        return RobotContext::default();
+    };
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(1);
+    while let Ok(Ok(sample)) = tokio::time::timeout_at(deadline, sub.recv_async()).await {
+        if let Ok(p) = msg::decode::<msg::Pose>(&sample.payload().to_bytes()) {
+            return RobotContext {
+                position_m: Some((p.x_m, p.y_m)),
+                lat_lon_deg: p.lat_lon_deg,
+                mapped: None,
+            };
+        }
+    }
+    RobotContext::default()
 }
 
 async fn goal(a: GoalArgs) -> anyhow::Result<()> {
@@ -655,7 +692,15 @@ async fn goal(a: GoalArgs) -> anyhow::Result<()> {
         target,
         tolerance_m: 0.0,
     };
-    send_to_robot(&a.client, &a.robot, Topic::CmdGoal, msg::encode(&cmd)).await?;
+    let rid = RobotId::new(&a.robot)?;
+    let s = robot_session(&a.client, &a.robot).await?;
+    // The same contract the robot and the HTTP API apply: refused here, nothing is sent.
+    let ctx = robot_context(&s, &rid).await;
+    if let Err(r) = check_goal(&cmd, &CommandLimits::default(), &ctx) {
+        let _ = s.close().await;
+        bail!("goal refused: {} [{}]", r.message, r.code.as_str());
+    }
+    put_and_close(s, &rid, Topic::CmdGoal, msg::encode(&cmd)).await?;
     println!(
         "{}",
         serde_json::json!({"ok": true, "robot": a.robot, "sent": cmd})
