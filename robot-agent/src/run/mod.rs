@@ -33,6 +33,8 @@ pub struct HeadlessOptions {
     /// Teach and repeat: draw the robot's map with the repeat's driven path (truth) into this
     /// PNG at the end.
     pub map_png: Option<std::path::PathBuf>,
+    /// Live robot: write the simulator's truth here ([`crate::truth_log`]).
+    pub truth_out: Option<std::path::PathBuf>,
 }
 
 impl Default for HeadlessOptions {
@@ -43,6 +45,7 @@ impl Default for HeadlessOptions {
             start: None,
             stop_on_collision: true,
             map_png: None,
+            truth_out: None,
         }
     }
 }
