@@ -9,7 +9,7 @@
 use std::collections::BTreeMap;
 
 use common::msg::{FixState, MissionState, Mode, Pose, Status};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// What raises alerts.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -37,7 +37,7 @@ impl Default for AlertConfig {
 }
 
 /// Kinds of alert.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum AlertKind {
     /// No progress toward the goal.
@@ -51,7 +51,7 @@ pub enum AlertKind {
 }
 
 /// One alert.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Alert {
     /// Id, increasing.
     pub id: u64,
@@ -83,8 +83,9 @@ pub struct Observation<'a> {
 #[derive(Clone, Debug, Default)]
 struct Watch {
     online: Option<bool>,
-    /// (what the robot is working toward, best remaining distance, since when) while on a mission.
-    progress: Option<(String, f64, u64)>,
+    /// (what the robot is working toward, best remaining distance, since when, heading then)
+    /// while on a mission.
+    progress: Option<(String, f64, u64, f64)>,
     stuck_alert: Option<u64>,
     no_path_since: Option<(u64, u32)>,
     no_path_raised: Option<u32>,
@@ -113,6 +114,9 @@ pub struct Alerts {
     watch: BTreeMap<String, Watch>,
 }
 
+/// A turn on the spot this large counts as progress, radians.
+pub const TURN_PROGRESS_RAD: f64 = 0.5;
+
 /// Most alerts kept (the oldest acknowledged go first).
 pub const MAX_ALERTS: usize = 500;
 
@@ -123,6 +127,22 @@ impl Alerts {
             cfg,
             next_id: 1,
             ..Self::default()
+        }
+    }
+
+    /// An alert list that goes on from `stored` (alerts kept across a restart). Their causes
+    /// are judged anew: they are no longer marked active.
+    pub fn restore(cfg: AlertConfig, stored: Vec<Alert>) -> Self {
+        let next_id = stored.iter().map(|a| a.id).max().unwrap_or(0) + 1;
+        let list = stored
+            .into_iter()
+            .map(|a| Alert { active: false, ..a })
+            .collect();
+        Self {
+            cfg,
+            next_id,
+            list,
+            watch: BTreeMap::new(),
         }
     }
 
@@ -222,14 +242,16 @@ impl Alerts {
             s.mission,
             MissionState::Planning | MissionState::Driving | MissionState::Blocked
         );
-        // What the robot works toward and how far it still is.
+        // What the robot works toward (its key, for humans) and how far it still is.
         let target = match (s.mode, &s.route, s.goal_m, pose) {
             (Mode::Repeat, Some(r), _, _) => Some((
                 format!("route {}", r.route_id),
+                format!("route {:?}", r.name),
                 f64::from(r.distance_left_m),
             )),
             (Mode::Goal, _, Some(g), Some(p)) => Some((
                 format!("goal {}", s.goal_id),
+                format!("goal ({:.1}, {:.1})", g.0, g.1),
                 (g.0 - p.x_m).hypot(g.1 - p.y_m),
             )),
             _ => None,
@@ -240,22 +262,32 @@ impl Alerts {
                 w.progress = None;
                 out.extend(self.set_active(w.stuck_alert.take(), false));
             }
-            Some((key, d)) => {
+            Some((key, label, d)) => {
+                let yaw = pose.map_or(0.0, |p| f64::from(p.yaw_rad));
+                // Turning on the spot toward the path (a route repeated backwards starts with a
+                // half turn) is progress too; standing or creeping is not.
                 let fresh = match &w.progress {
-                    Some((k, best, _)) => *k != key || d < best - cfg.stuck_progress_m,
+                    Some((k, best, _, yaw0)) => {
+                        let turned = (yaw - yaw0 + std::f64::consts::PI)
+                            .rem_euclid(std::f64::consts::TAU)
+                            - std::f64::consts::PI;
+                        *k != key
+                            || d < best - cfg.stuck_progress_m
+                            || turned.abs() > TURN_PROGRESS_RAD
+                    }
                     None => true,
                 };
                 if fresh {
-                    w.progress = Some((key, d, now_ms));
+                    w.progress = Some((key, d, now_ms, yaw));
                     out.extend(self.set_active(w.stuck_alert.take(), false));
-                } else if let Some((k, best, since)) = &w.progress {
+                } else if let Some((_, best, since, _)) = &w.progress {
                     let idle_s = now_ms.saturating_sub(*since) as f64 / 1000.0;
                     if w.stuck_alert.is_none() && idle_s >= cfg.stuck_after_s {
                         let a = self.raise(
                             robot,
                             AlertKind::Stuck,
                             format!(
-                                "{robot} is stuck: no progress toward its {k} for {idle_s:.0} s ({best:.1} m to go; {})",
+                                "{robot} is stuck: no progress toward its {label} for {idle_s:.0} s ({best:.1} m to go; {})",
                                 s.reason
                             ),
                             now_ms,
@@ -447,5 +479,11 @@ mod tests {
         let g = a.observe("r", obs(&s, &float), 8_100);
         assert_eq!(g[0].kind, AlertKind::GnssDegraded);
         assert_eq!(a.list().len(), 3);
+        // Kept across a restart: ids go on, causes are judged anew.
+        let b = Alerts::restore(AlertConfig::default(), a.list().into_iter().rev().collect());
+        assert!(b.list().iter().all(|x| !x.active));
+        let mut b = b;
+        let next = b.raise("r", AlertKind::Offline, "again".into(), 9_000);
+        assert_eq!(next.id, 4);
     }
 }

@@ -681,7 +681,7 @@ impl Inner {
         };
         for a in raised {
             tracing::info!(robot = a.robot, kind = ?a.kind, active = a.active, "alert: {}", a.message);
-            self.emit(json!({"type": "alert", "alert": a}).to_string());
+            self.alert_changed(&a);
         }
         // Mission runs.
         let mut sends: Vec<(String, RunAction)> = Vec::new();
@@ -723,11 +723,20 @@ impl Inner {
                 format!("{robot}: mission {name:?} failed: {reason}"),
                 now_ms,
             );
-            self.emit(json!({"type": "alert", "alert": a}).to_string());
+            self.alert_changed(&a);
         }
         for run in changed {
             self.emit(json!({"type": "mission_run", "run": run}).to_string());
         }
+    }
+
+    /// Keeps an alert that was raised, resolved or acknowledged, and tells the browsers.
+    pub fn alert_changed(&self, a: &crate::alerts::Alert) {
+        self.store(StoreOp::Alert {
+            id: a.id,
+            json: serde_json::to_string(a).unwrap_or_default(),
+        });
+        self.emit(json!({"type": "alert", "alert": a}).to_string());
     }
 
     /// Sends what a mission run asks for.
@@ -799,7 +808,7 @@ impl Station {
     /// Opens the database (restoring the merged map), the Zenoh session, and starts listening.
     pub async fn start(opts: StationOptions) -> Result<Station, StationError> {
         let store = StoreWriter::start(&opts.db)?;
-        let (map, datums, zone_rows, mission_rows) = {
+        let (map, datums, zone_rows, mission_rows, alert_rows) = {
             let c = store::open(&opts.db)?;
             let mut map = MergedMap::default();
             let mut datums = Datums::default();
@@ -824,7 +833,11 @@ impl Station {
                 .filter_map(|j| serde_json::from_str::<Mission>(j).ok())
                 .map(|m| (m.mission_id.clone(), m))
                 .collect();
-            (map, datums, zones, missions)
+            let alerts: Vec<crate::alerts::Alert> = store::alerts(&c, crate::alerts::MAX_ALERTS)?
+                .iter()
+                .filter_map(|j| serde_json::from_str(j).ok())
+                .collect();
+            (map, datums, zones, missions, alerts)
         };
         let map = Arc::new(RwLock::new(map));
         let (events, _) = broadcast::channel(4096);
@@ -873,7 +886,7 @@ impl Station {
             }),
             missions: Mutex::new(mission_rows),
             runs: Mutex::new(BTreeMap::new()),
-            alerts: Mutex::new(Alerts::new(opts.alerts)),
+            alerts: Mutex::new(Alerts::restore(opts.alerts, alert_rows)),
         });
         let mut subs: Vec<Box<dyn std::any::Any + Send + Sync>> = Vec::new();
         let i2 = inner.clone();

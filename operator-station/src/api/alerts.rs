@@ -22,8 +22,9 @@ pub async fn ack(State(st): State<AppState>, UrlPath(id): UrlPath<u64>) -> ApiRe
         }
         a.get(id).cloned()
     };
-    st.inner
-        .emit(json!({"type": "alert", "alert": alert}).to_string());
+    if let Some(a) = &alert {
+        st.inner.alert_changed(a);
+    }
     Ok(Json(json!({"ok": true, "alert": alert})))
 }
 
@@ -40,6 +41,12 @@ pub async fn ack_all(State(st): State<AppState>) -> Json<Value> {
             .collect();
         for id in &ids {
             a.ack(*id, now);
+            if let Some(x) = a.get(*id) {
+                st.inner.store(crate::store::StoreOp::Alert {
+                    id: *id,
+                    json: serde_json::to_string(x).unwrap_or_default(),
+                });
+            }
         }
         ids.len()
     };

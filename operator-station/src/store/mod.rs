@@ -49,8 +49,10 @@ const MIGRATIONS: &[&str] = &[
      CREATE TABLE tiles (
         datum_id TEXT NOT NULL, tx INTEGER NOT NULL, ty INTEGER NOT NULL, version INTEGER NOT NULL,
         data BLOB NOT NULL, PRIMARY KEY (datum_id, tx, ty));",
-    // 1 -> 2: the operator's zones and missions (JSON of `zones::ZoneRecord`, `missions::Mission`).
+    // 1 -> 2: the operator's zones, missions and alerts (JSON of `zones::ZoneRecord`,
+    // `missions::Mission`, `alerts::Alert`).
     "CREATE TABLE zones (zone_id TEXT PRIMARY KEY, json TEXT NOT NULL);
+     CREATE TABLE alerts (id INTEGER PRIMARY KEY, json TEXT NOT NULL);
      CREATE TABLE missions (mission_id TEXT PRIMARY KEY, name TEXT NOT NULL, saved_unix_ms INTEGER NOT NULL, json TEXT NOT NULL);",
 ];
 
@@ -225,6 +227,13 @@ pub enum StoreOp {
     },
     /// Delete a mission.
     DeleteMission(String),
+    /// Insert or replace an alert (`alerts::Alert` JSON).
+    Alert {
+        /// Id.
+        id: u64,
+        /// JSON.
+        json: String,
+    },
     /// Commit now and acknowledge (tests, shutdown).
     Flush(mpsc::Sender<()>),
     /// Commit and stop the writer thread.
@@ -355,6 +364,12 @@ fn apply(tx: &rusqlite::Transaction<'_>, op: &StoreOp) -> rusqlite::Result<()> {
         }
         StoreOp::DeleteMission(id) => {
             tx.execute("DELETE FROM missions WHERE mission_id = ?1", params![id])?;
+        }
+        StoreOp::Alert { id, json } => {
+            tx.execute(
+                "INSERT OR REPLACE INTO alerts VALUES (?1, ?2)",
+                params![*id as i64, json],
+            )?;
         }
         StoreOp::Flush(_) | StoreOp::Shutdown => {}
     }
@@ -571,6 +586,17 @@ pub fn zones(c: &Connection) -> Result<Vec<String>, StoreError> {
     let mut st = c.prepare("SELECT json FROM zones ORDER BY zone_id")?;
     let rows = st
         .query_map([], |r| r.get(0))?
+        .collect::<Result<Vec<String>, _>>()?;
+    Ok(rows)
+}
+
+/// The newest `limit` stored alerts' JSON, oldest first.
+pub fn alerts(c: &Connection, limit: usize) -> Result<Vec<String>, StoreError> {
+    let mut st = c.prepare(
+        "SELECT json FROM (SELECT id, json FROM alerts ORDER BY id DESC LIMIT ?1) ORDER BY id",
+    )?;
+    let rows = st
+        .query_map(params![limit as i64], |r| r.get(0))?
         .collect::<Result<Vec<String>, _>>()?;
     Ok(rows)
 }
