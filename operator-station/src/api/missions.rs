@@ -51,7 +51,7 @@ fn new_id() -> String {
 pub async fn list(State(st): State<AppState>) -> Json<Value> {
     let m = st.inner.missions.lock().unwrap_or_else(|p| p.into_inner());
     let mut v: Vec<&Mission> = m.values().collect();
-    v.sort_by(|a, b| b.saved_unix_ms.cmp(&a.saved_unix_ms));
+    v.sort_by_key(|m| std::cmp::Reverse(m.saved_unix_ms));
     Json(Value::Array(v.iter().map(|m| m.summary()).collect()))
 }
 

@@ -453,8 +453,10 @@ mod tests {
         let mut next = || ids.next().unwrap();
         let mut run = Run::new("r", mission(2), SendAs::MapXy, 0);
         let g = goal_of(&run.step(0, now(&Status::default()), &mut next));
-        let mut refused = Status::default();
-        refused.last_error = Some("goal: (1.0, 1.0) is inside keep-out zone \"pond\"".into());
+        let refused = Status {
+            last_error: Some("goal: (1.0, 1.0) is inside keep-out zone \"pond\"".into()),
+            ..Status::default()
+        };
         run.step(1000, now(&refused), &mut next);
         assert!(
             matches!(&run.phase, RunPhase::Failed { reason } if reason.contains("keep-out")),
