@@ -450,8 +450,7 @@ async fn stop_signal() {
 /// Station plus simulated robots until Ctrl-C (or SIGTERM / SIGHUP).
 pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
     let addr = http_addr(None, a.port, None)?;
-    let zport = demo_zenoh_port(a.zenoh_port)?;
-    let endpoint = format!("tcp/127.0.0.1:{zport}");
+    let mut zport = demo_zenoh_port(a.zenoh_port)?;
     // The temporary folder (only when no --db is given) goes when the demo ends, however it
     // ends short of SIGKILL.
     let tmp = match &a.db {
@@ -469,8 +468,18 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
             eprintln!("{note}");
         }
     }
-    let zc = station::zenoh_config(None, None, std::slice::from_ref(&endpoint), &[])?;
-    let running = start_station(zc, &db, addr, None, web, &a.ops).await?;
+    let zc = |port: u16| station::zenoh_config(None, None, &[format!("tcp/127.0.0.1:{port}")], &[]);
+    let running = match start_station(zc(zport)?, &db, addr, None, web.clone(), &a.ops).await {
+        Ok(r) => r,
+        // Another program took 7447 between the check and the bind: any free port will do.
+        Err(e) if a.zenoh_port.is_none() && zport == DEFAULT_ZENOH_PORT => {
+            tracing::warn!("zenoh on port {zport}: {e:#}; trying a free port");
+            zport = demo_zenoh_port(Some(0))?;
+            start_station(zc(zport)?, &db, addr, None, web, &a.ops).await?
+        }
+        Err(e) => return Err(e),
+    };
+    let endpoint = format!("tcp/127.0.0.1:{zport}");
     let agent = robot_agent_bin();
     let scenario = if a.scenario.is_file() {
         a.scenario.clone()
