@@ -41,6 +41,8 @@ pub struct HeadlessOptions {
     pub map_png: Option<std::path::PathBuf>,
     /// Record the wall time of the agent's stages ([`Rig::stage_times`]).
     pub time_stages: bool,
+    /// Live robot: write the simulator's truth here ([`crate::truth_log`]).
+    pub truth_out: Option<std::path::PathBuf>,
 }
 
 impl Default for HeadlessOptions {
@@ -52,6 +54,7 @@ impl Default for HeadlessOptions {
             stop_on_collision: true,
             map_png: None,
             time_stages: false,
+            truth_out: None,
         }
     }
 }
