@@ -4,6 +4,7 @@
 //! The simulator is the robot here: the agent only sees its sensor outputs (scans, odometry,
 //! NMEA), never its truth; the truth is used only to score the outcome.
 
+pub mod bag_play;
 pub mod convert;
 pub mod gnss_sources;
 pub mod io_config;
