@@ -735,14 +735,10 @@ mod tests {
             .collect()
     }
 
-    fn read_all(
-        path: &Path,
-    ) -> (
-        Vec<(String, u32, u64, Vec<u8>)>,
-        Vec<String>,
-        Option<ReadError>,
-        bool,
-    ) {
+    /// (topic, sequence, log time, data) of each message.
+    type Msgs = Vec<(String, u32, u64, Vec<u8>)>;
+
+    fn read_all(path: &Path) -> (Msgs, Vec<String>, Option<ReadError>, bool) {
         let mut r = Reader::open(path).unwrap();
         let (mut msgs, mut meta, mut err) = (Vec::new(), Vec::new(), None);
         for item in r.by_ref() {
