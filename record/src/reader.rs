@@ -64,7 +64,7 @@ pub enum ReadError {
         source: std::io::Error,
     },
     /// The file ends inside a record or chunk: the recording was cut (killed, disk full).
-    #[error("{path} ends after {offset} bytes inside an unfinished record (the recording was cut); everything before it was read")]
+    #[error("{path} ends after {offset} bytes inside an unfinished record or chunk (the recording was cut); everything before it was read")]
     Truncated {
         /// File.
         path: String,
@@ -148,7 +148,10 @@ impl Reader {
                     self.finished = true;
                     return None;
                 }
-                Some(Err(mcap::McapError::UnexpectedEof)) => {
+                // A killed writer leaves its open chunk with the placeholder lengths it patches
+                // when the chunk closes (all ones), which the mcap reader reports as a chunk
+                // ending early: the same cut as a file ending inside a record.
+                Some(Err(mcap::McapError::UnexpectedEof | mcap::McapError::UnexpectedEoc)) => {
                     return Some(Err(ReadError::Truncated {
                         path: self.shown(),
                         offset: self.offset,

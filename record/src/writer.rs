@@ -807,6 +807,24 @@ mod tests {
         assert!(!finished);
         assert!(matches!(err, Some(ReadError::Truncated { .. })), "{err:?}");
         assert_eq!(msgs.len(), 50);
+        // A kill while a chunk is open leaves the header the mcap writer starts every chunk
+        // with: lengths all ones until the chunk is closed, then compressed bytes.
+        let mut open = std::fs::read(&cut).unwrap();
+        open.push(0x06);
+        open.extend((!0u64).to_le_bytes());
+        open.extend([0u8; 16]); // start and end time
+        open.extend((!0u64).to_le_bytes()); // uncompressed size
+        open.extend((!0u32).to_le_bytes()); // uncompressed CRC
+        open.extend(4u32.to_le_bytes());
+        open.extend(b"zstd");
+        open.extend((!0u64).to_le_bytes()); // compressed size
+        open.extend(payload(99, 3000));
+        let open_path = d.path().join("open-chunk.mcap");
+        std::fs::write(&open_path, &open).unwrap();
+        let (msgs, _, err, finished) = read_all(&open_path);
+        assert!(!finished);
+        assert!(matches!(err, Some(ReadError::Truncated { .. })), "{err:?}");
+        assert_eq!(msgs.len(), 50);
         // And a cut in the middle of a chunk: the chunks before it still read.
         let bytes = std::fs::read(&cut).unwrap();
         std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
