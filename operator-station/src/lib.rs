@@ -4,6 +4,7 @@
 
 pub mod api;
 pub mod cli;
+pub mod export;
 pub mod fleet;
 pub mod merge;
 pub mod station;

@@ -105,6 +105,9 @@ pub struct DemoArgs {
     /// Database file (default: a fresh temporary one).
     #[arg(long)]
     pub db: Option<PathBuf>,
+    /// Record each robot's session to MCAP in this folder (`husky-N.mcap`).
+    #[arg(long, value_name = "DIR")]
+    pub record_mcap: Option<PathBuf>,
 }
 
 /// Options of commands that talk to robots directly.
@@ -157,17 +160,34 @@ pub struct ExportArgs {
 /// Export targets.
 #[derive(Debug, Clone, Subcommand)]
 pub enum ExportWhat {
-    /// The merged map of a datum as PNG (north up).
+    /// The merged map of a datum as PNG (north up) and/or GeoTIFF (height, class and cost bands,
+    /// georeferenced; needs a GNSS datum).
     Map {
         /// Output PNG.
+        #[arg(long, required_unless_present = "geotiff")]
+        png: Option<PathBuf>,
+        /// Output GeoTIFF.
         #[arg(long)]
-        png: PathBuf,
+        geotiff: Option<PathBuf>,
         /// Datum id (default: the one with most tiles).
         #[arg(long)]
         datum: Option<String>,
         /// Pixels per cell along each side (1 = one pixel per 0.2 m cell).
         #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=8))]
         px_per_cell: u32,
+        /// Database file.
+        #[arg(long, default_value = "terranav-station.sqlite")]
+        db: PathBuf,
+    },
+    /// A session as MCAP (Foxglove, Lichtblick): poses, track, paths, goals, routes, and the
+    /// merged map of its datum as a grid and as tiles.
+    Session {
+        /// Session id.
+        #[arg(long)]
+        session: String,
+        /// Output MCAP.
+        #[arg(long)]
+        mcap: PathBuf,
         /// Database file.
         #[arg(long, default_value = "terranav-station.sqlite")]
         db: PathBuf,
@@ -356,10 +376,26 @@ pub fn robot_agent_bin() -> PathBuf {
     PathBuf::from("robot-agent")
 }
 
-struct Children(Vec<Child>);
+struct Children(Vec<Child>, bool);
 
 impl Drop for Children {
     fn drop(&mut self) {
+        if self.1 {
+            // Recording robots are asked to stop (SIGTERM) so that they close their files with
+            // summaries; those that do not within 5 s are killed (their files still read up to
+            // the last closed chunk).
+            for c in &self.0 {
+                let _ = Command::new("kill")
+                    .args(["-TERM", &c.id().to_string()])
+                    .status();
+            }
+            let until = std::time::Instant::now() + Duration::from_secs(5);
+            while std::time::Instant::now() < until
+                && self.0.iter_mut().any(|c| matches!(c.try_wait(), Ok(None)))
+            {
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        }
         for c in &mut self.0 {
             let _ = c.kill();
             let _ = c.wait();
@@ -425,13 +461,20 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
             a.scenario.clone()
         }
     };
-    let mut children = Children(Vec::new());
+    let mut children = Children(Vec::new(), a.record_mcap.is_some());
+    if let Some(dir) = &a.record_mcap {
+        std::fs::create_dir_all(dir).with_context(|| format!("--record-mcap {}", dir.display()))?;
+    }
     for i in 1..=a.robots {
         let robot = format!("husky-{i}");
         // Distinct start poses: a row 4 m apart, all facing east.
         let start = format!("{},{},0", 0.0, (i as f64 - 1.0) * 4.0);
-        let child = Command::new(&agent)
-            .arg("sim")
+        let mut cmd = Command::new(&agent);
+        cmd.arg("sim");
+        if let Some(dir) = &a.record_mcap {
+            cmd.arg("--mcap").arg(dir.join(format!("{robot}.mcap")));
+        }
+        let child = cmd
             .arg("--scenario")
             .arg(&scenario)
             .args([
@@ -624,8 +667,14 @@ async fn stop(a: StopArgs) -> anyhow::Result<()> {
 
 fn export(a: ExportArgs) -> anyhow::Result<()> {
     match a.what {
+        ExportWhat::Session { session, mcap, db } => {
+            let c = open_existing(&db)?;
+            let e = crate::export::mcap::export_session(&c, &session, &mcap)?;
+            println!("{}", serde_json::to_string(&e)?);
+        }
         ExportWhat::Map {
             png,
+            geotiff,
             datum,
             px_per_cell,
             db,
@@ -654,11 +703,35 @@ fn export(a: ExportArgs) -> anyhow::Result<()> {
                     datums.iter().map(|d| &d.datum_id).collect::<Vec<_>>()
                 )
             })?;
-            let bytes = crate::merge::datum_png_scaled(dm, px_per_cell).context("empty map")?;
-            std::fs::write(&png, bytes).with_context(|| format!("write {}", png.display()))?;
+            if let Some(png) = &png {
+                let bytes = crate::merge::datum_png_scaled(dm, px_per_cell).context("empty map")?;
+                std::fs::write(png, bytes).with_context(|| format!("write {}", png.display()))?;
+            }
+            let mut geo = None;
+            if let Some(out) = &geotiff {
+                let row = datums
+                    .iter()
+                    .find(|d| d.datum_id == pick)
+                    .with_context(|| format!("datum {pick} is not in the database"))?;
+                let (Some(lat_deg), Some(lon_deg)) = (row.lat_deg, row.lon_deg) else {
+                    bail!(
+                        "datum {pick} is a local (SLAM-only) frame: a GeoTIFF needs a GNSS datum"
+                    );
+                };
+                let d = msg::Datum {
+                    lat_deg,
+                    lon_deg,
+                    h_m: row.h_m.unwrap_or(0.0),
+                };
+                let f = std::fs::File::create(out)
+                    .with_context(|| format!("create {}", out.display()))?;
+                let info = crate::export::geotiff::write(dm, &d, &pick, std::io::BufWriter::new(f))
+                    .with_context(|| format!("write {}", out.display()))?;
+                geo = Some(info);
+            }
             println!(
                 "{}",
-                serde_json::json!({"datum_id": pick, "tiles": dm.tiles.len(), "bounds_m": dm.bounds_m(), "png": png})
+                serde_json::json!({"datum_id": pick, "tiles": dm.tiles.len(), "bounds_m": dm.bounds_m(), "png": png, "geotiff": geotiff, "raster": geo})
             );
         }
         ExportWhat::Track {
