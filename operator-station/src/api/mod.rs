@@ -14,6 +14,7 @@ use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
+use common::command::{check_goal, BoundsM, CommandLimits, Refusal, RobotContext};
 use common::grid::TileIndex;
 use common::keys::{self, RobotId, Topic};
 use common::msg::{
@@ -42,7 +43,17 @@ pub struct ApiError(pub StatusCode, pub String);
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        (self.0, Json(json!({"error": self.1}))).into_response()
+        // A contract refusal ends "[code]": clients match on the code, people read the error.
+        let code = self
+            .1
+            .strip_suffix(']')
+            .and_then(|m| m.rsplit_once(" ["))
+            .map(|(_, c)| c)
+            .filter(|c| !c.is_empty() && c.bytes().all(|b| b.is_ascii_lowercase() || b == b'_'));
+        match code {
+            Some(c) => (self.0, Json(json!({"error": self.1, "code": c}))).into_response(),
+            None => (self.0, Json(json!({"error": self.1}))).into_response(),
+        }
     }
 }
 
@@ -51,6 +62,13 @@ fn bad(m: impl Into<String>) -> ApiError {
 }
 fn not_found(m: impl Into<String>) -> ApiError {
     ApiError(StatusCode::NOT_FOUND, m.into())
+}
+/// A command the contract refuses: 422 with the refusal's stable code beside the message.
+fn refused(r: Refusal) -> ApiError {
+    ApiError(
+        StatusCode::UNPROCESSABLE_ENTITY,
+        format!("{} [{}]", r.message, r.code.as_str()),
+    )
 }
 fn internal(m: impl std::fmt::Display) -> ApiError {
     ApiError(StatusCode::INTERNAL_SERVER_ERROR, m.to_string())
@@ -662,6 +680,31 @@ pub fn goal_target(b: &GoalBody) -> Result<GoalTarget, String> {
     }
 }
 
+/// What the station knows of `robot` for the goal contract: its last pose (map frame and
+/// WGS-84) and the merged map of its datum.
+fn goal_context(st: &AppState, robot: &str) -> RobotContext {
+    let (pose, datum_id) = {
+        let f = st.inner.fleet.lock().unwrap_or_else(|p| p.into_inner());
+        f.robots
+            .get(robot)
+            .map(|r| (r.pose.clone(), r.datum_id.clone()))
+            .unwrap_or_default()
+    };
+    let mapped = datum_id.and_then(|d| {
+        let map = st.inner.map.read().unwrap_or_else(|p| p.into_inner());
+        let b = map.datums.get(&d)?.bounds_m()?;
+        Some(BoundsM {
+            min_m: (b[0], b[1]),
+            max_m: (b[2], b[3]),
+        })
+    });
+    RobotContext {
+        position_m: pose.as_ref().map(|p| (p.x_m, p.y_m)),
+        lat_lon_deg: pose.as_ref().and_then(|p| p.lat_lon_deg),
+        mapped,
+    }
+}
+
 async fn cmd_goal(
     State(st): State<AppState>,
     UrlPath(robot): UrlPath<String>,
@@ -679,6 +722,9 @@ async fn cmd_goal(
         target,
         tolerance_m: tol,
     };
+    // The robot checks the same contract; refusing here already tells the operator at once
+    // (a swapped lat/lon would otherwise leave as "sent" and come back as a refusal later).
+    check_goal(&cmd, &CommandLimits::default(), &goal_context(&st, &robot)).map_err(refused)?;
     put(&st, &id, Topic::CmdGoal, msg::encode(&cmd)).await?;
     let sent = serde_json::to_value(&cmd).map_err(internal)?;
     st.inner.store(StoreOp::Goal {

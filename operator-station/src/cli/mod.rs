@@ -11,6 +11,7 @@ use std::time::Duration;
 
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
+use common::command::{check_goal, CommandLimits, RobotContext};
 use common::keys::{self, RobotId, Topic};
 use common::msg::{self, GoalCmd, GoalTarget, Session, StopCmd};
 use zenoh::query::ConsolidationMode;
@@ -376,27 +377,32 @@ pub fn robot_agent_bin() -> PathBuf {
     PathBuf::from("robot-agent")
 }
 
-struct Children(Vec<Child>, bool);
+/// The demo's robot processes, each with what it is (`husky-1 world`), and whether the robots
+/// record (then they are asked to stop first, so that their recordings close).
+struct Children(Vec<(String, Child)>, bool);
 
 impl Drop for Children {
     fn drop(&mut self) {
         if self.1 {
-            // Recording robots are asked to stop (SIGTERM) so that they close their files with
+            // Recording agents are asked to stop (SIGTERM) so that they close their files with
             // summaries; those that do not within 5 s are killed (their files still read up to
             // the last closed chunk).
-            for c in &self.0 {
+            for (_, c) in self.0.iter().filter(|(what, _)| what.ends_with(" agent")) {
                 let _ = Command::new("kill")
                     .args(["-TERM", &c.id().to_string()])
                     .status();
             }
             let until = std::time::Instant::now() + Duration::from_secs(5);
             while std::time::Instant::now() < until
-                && self.0.iter_mut().any(|c| matches!(c.try_wait(), Ok(None)))
+                && self
+                    .0
+                    .iter_mut()
+                    .any(|(what, c)| what.ends_with(" agent") && matches!(c.try_wait(), Ok(None)))
             {
                 std::thread::sleep(Duration::from_millis(50));
             }
         }
-        for c in &mut self.0 {
+        for (_, c) in &mut self.0 {
             let _ = c.kill();
             let _ = c.wait();
         }
@@ -424,6 +430,79 @@ async fn stop_signal() {
     }
     #[cfg(not(unix))]
     let _ = tokio::signal::ctrl_c().await;
+}
+
+/// One demo robot the way a real one runs: the simulated world serving its sensors as ROS 2
+/// topics on its own Zenoh endpoint (`robot-agent sim --serve-ros2`, the robot's "hardware"),
+/// and `robot-agent run` on those topics, connected to the station. The agent takes the world's
+/// datum so every robot maps in one frame, as robots sharing a site datum do.
+#[allow(clippy::too_many_arguments)] // one robot's launch line, each argument a flag of it
+fn start_robot(
+    agent: &Path,
+    scenario: &Path,
+    robot: &str,
+    seed: u32,
+    start: &str,
+    station_endpoint: &str,
+    mcap: Option<PathBuf>,
+    children: &mut Children,
+) -> anyhow::Result<()> {
+    use std::io::BufRead;
+    let hw_port = std::net::TcpListener::bind("127.0.0.1:0")?
+        .local_addr()?
+        .port();
+    let hw_endpoint = format!("tcp/127.0.0.1:{hw_port}");
+    let spawn_err = || {
+        format!(
+            "start {} (build it with cargo build --release --bins)",
+            agent.display()
+        )
+    };
+    let mut world = Command::new(agent)
+        .arg("sim")
+        .arg("--scenario")
+        .arg(scenario)
+        .args([
+            "--serve-ros2",
+            "--listen",
+            &hw_endpoint,
+            "--seed",
+            &seed.to_string(),
+        ])
+        .arg(format!("--start={start}"))
+        // A station killed outright (SIGKILL, out of memory) never runs `Children`'s drop;
+        // its robots would go on simulating and publishing with nobody to stop them.
+        .arg("--exit-with-parent")
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .spawn()
+        .with_context(spawn_err)?;
+    // The world's first line names its datum; the rest (its truth, for tests) is drained.
+    let out = world.stdout.take().context("world stdout")?;
+    children.0.push((format!("{robot} world"), world));
+    let mut lines = std::io::BufReader::new(out).lines();
+    let first = lines
+        .next()
+        .context("the simulated world exited before it started")??;
+    std::thread::spawn(move || for _ in lines.map_while(Result::ok) {});
+    let datum = serde_json::from_str::<serde_json::Value>(&first)
+        .ok()
+        .and_then(|v| v["datum"].as_str().map(str::to_owned))
+        .with_context(|| format!("the world's first line names no datum: {first}"))?;
+    let mut run = Command::new(agent);
+    run.args(["run", "--robot", robot, "--connect", station_endpoint]);
+    if let Some(path) = &mcap {
+        run.arg("--mcap").arg(path);
+    }
+    let run = run
+        .args(["--ros2-connect", &hw_endpoint, "--heading", "ros2:heading"])
+        .args(["--datum", &datum, "--exit-with-parent"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .spawn()
+        .with_context(spawn_err)?;
+    children.0.push((format!("{robot} agent"), run));
+    Ok(())
 }
 
 /// Station plus simulated robots until Ctrl-C (or SIGTERM / SIGHUP).
@@ -469,35 +548,18 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
         let robot = format!("husky-{i}");
         // Distinct start poses: a row 4 m apart, all facing east.
         let start = format!("{},{},0", 0.0, (i as f64 - 1.0) * 4.0);
-        let mut cmd = Command::new(&agent);
-        cmd.arg("sim");
-        if let Some(dir) = &a.record_mcap {
-            cmd.arg("--mcap").arg(dir.join(format!("{robot}.mcap")));
-        }
-        let child = cmd
-            .arg("--scenario")
-            .arg(&scenario)
-            .args([
-                "--robot",
-                &robot,
-                "--connect",
-                &endpoint,
-                "--seed",
-                &i.to_string(),
-            ])
-            .arg(format!("--start={start}"))
-            // A station killed outright (SIGKILL, out of memory) never runs `Children`'s drop;
-            // its robots would go on simulating and publishing with nobody to stop them.
-            .arg("--exit-with-parent")
-            .stdin(Stdio::null())
-            .spawn()
-            .with_context(|| {
-                format!(
-                    "start {} (build it with cargo build --release --bins)",
-                    agent.display()
-                )
-            })?;
-        children.0.push(child);
+        start_robot(
+            &agent,
+            &scenario,
+            &robot,
+            i,
+            &start,
+            &endpoint,
+            a.record_mcap
+                .as_ref()
+                .map(|d| d.join(format!("{robot}.mcap"))),
+            &mut children,
+        )?;
     }
     println!("terranav demo: open http://{addr}/  ({} simulated robots, zenoh {endpoint}; Ctrl-C to stop)", a.robots);
     let mut tick = tokio::time::interval(Duration::from_millis(500));
@@ -507,12 +569,13 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
         tokio::select! {
             _ = &mut stop => break,
             _ = tick.tick() => {
-                for (i, c) in children.0.iter_mut().enumerate() {
-                    if let Ok(Some(status)) = c.try_wait() {
-                        eprintln!("robot husky-{} exited with {status}", i + 1);
+                children.0.retain_mut(|(name, c)| match c.try_wait() {
+                    Ok(Some(status)) => {
+                        eprintln!("robot {name} exited with {status}");
+                        false
                     }
-                }
-                children.0.retain_mut(|c| !matches!(c.try_wait(), Ok(Some(_))));
+                    _ => true,
+                });
             }
         }
     }
@@ -598,13 +661,8 @@ fn parse_pair(s: &str) -> anyhow::Result<(f64, f64)> {
     Ok((a, b))
 }
 
-async fn send_to_robot(
-    c: &ClientArgs,
-    robot: &str,
-    topic: Topic,
-    payload: Vec<u8>,
-) -> anyhow::Result<()> {
-    let rid = RobotId::new(robot)?;
+/// A session that has seen `robot` online.
+async fn robot_session(c: &ClientArgs, robot: &str) -> anyhow::Result<zenoh::Session> {
     let s = client_session(&c.z).await?;
     tokio::time::sleep(Duration::from_millis(300)).await;
     let alive = alive_robots(&s, Duration::from_secs_f64(c.wait_s.max(0.2))).await?;
@@ -612,13 +670,54 @@ async fn send_to_robot(
         let _ = s.close().await;
         bail!("robot {robot} is not online (seen: {alive:?})");
     }
-    s.put(keys::key(&rid, topic), payload)
+    Ok(s)
+}
+
+/// Sends one command and closes the session.
+async fn put_and_close(
+    s: zenoh::Session,
+    rid: &RobotId,
+    topic: Topic,
+    payload: Vec<u8>,
+) -> anyhow::Result<()> {
+    let r = s
+        .put(keys::key(rid, topic), payload)
         .congestion_control(zenoh::qos::CongestionControl::Block)
         .await
-        .map_err(|e| anyhow::anyhow!("zenoh put: {e}"))?;
+        .map_err(|e| anyhow::anyhow!("zenoh put: {e}"));
     tokio::time::sleep(Duration::from_millis(200)).await;
     let _ = s.close().await;
-    Ok(())
+    r
+}
+
+async fn send_to_robot(
+    c: &ClientArgs,
+    robot: &str,
+    topic: Topic,
+    payload: Vec<u8>,
+) -> anyhow::Result<()> {
+    let rid = RobotId::new(robot)?;
+    let s = robot_session(c, robot).await?;
+    put_and_close(s, &rid, topic, payload).await
+}
+
+/// The robot's position from one of its poses (it publishes them at 10 Hz), for the goal
+/// contract; empty when none comes within a second.
+async fn robot_context(s: &zenoh::Session, rid: &RobotId) -> RobotContext {
+    let Ok(sub) = s.declare_subscriber(keys::key(rid, Topic::Pose)).await else {
+        return RobotContext::default();
+    };
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(1);
+    while let Ok(Ok(sample)) = tokio::time::timeout_at(deadline, sub.recv_async()).await {
+        if let Ok(p) = msg::decode::<msg::Pose>(&sample.payload().to_bytes()) {
+            return RobotContext {
+                position_m: Some((p.x_m, p.y_m)),
+                lat_lon_deg: p.lat_lon_deg,
+                mapped: None,
+            };
+        }
+    }
+    RobotContext::default()
 }
 
 async fn goal(a: GoalArgs) -> anyhow::Result<()> {
@@ -645,7 +744,15 @@ async fn goal(a: GoalArgs) -> anyhow::Result<()> {
         target,
         tolerance_m: 0.0,
     };
-    send_to_robot(&a.client, &a.robot, Topic::CmdGoal, msg::encode(&cmd)).await?;
+    let rid = RobotId::new(&a.robot)?;
+    let s = robot_session(&a.client, &a.robot).await?;
+    // The same contract the robot and the HTTP API apply: refused here, nothing is sent.
+    let ctx = robot_context(&s, &rid).await;
+    if let Err(r) = check_goal(&cmd, &CommandLimits::default(), &ctx) {
+        let _ = s.close().await;
+        bail!("goal refused: {} [{}]", r.message, r.code.as_str());
+    }
+    put_and_close(s, &rid, Topic::CmdGoal, msg::encode(&cmd)).await?;
     println!(
         "{}",
         serde_json::json!({"ok": true, "robot": a.robot, "sent": cmd})

@@ -187,8 +187,17 @@ impl Agent {
 
     /// Processes one LiDAR sweep: localisation, mapping, the safety check, the path check.
     pub fn on_scan(&mut self, scan: &Scan) -> ScanReport {
+        self.on_scan_probed(scan, &mut crate::NoProbe)
+    }
+
+    /// [`Agent::on_scan`], marking the end of each stage on `probe` (how the pipeline bench
+    /// times the stages without the agent reading a clock).
+    pub fn on_scan_probed(&mut self, scan: &Scan, probe: &mut dyn crate::Probe) -> ScanReport {
+        use crate::Stage;
         let mut rep = ScanReport::default();
-        let loc = match self.localiser.on_scan(scan) {
+        let loc = self.localiser.on_scan(scan);
+        probe.mark(Stage::Localise);
+        let loc = match loc {
             Ok(l) => l,
             Err(e) => {
                 rep.slam_failed = true;
@@ -228,6 +237,7 @@ impl Agent {
                 loc.jump_m
             );
         }
+        probe.mark(Stage::Map);
         // The safety stop judges the raw sweep, in base_link.
         let base_from_lidar = *self.localiser.base_from_lidar();
         self.driver.on_sweep(
@@ -247,6 +257,7 @@ impl Agent {
             rep.path_blocked = self.mission.nav_mut().check_path(&grid, &loc.pose.planar);
             self.path_dirty = false;
         }
+        probe.mark(Stage::Safety);
         rep
     }
 

@@ -19,6 +19,7 @@ pub mod config;
 pub mod driver;
 pub mod localiser;
 pub mod mission;
+pub mod probe;
 pub mod status;
 pub mod terrain;
 
@@ -27,4 +28,5 @@ pub use command::{Command, CommandKind};
 pub use config::{AgentConfig, MissionFile};
 pub use driver::Cmd;
 pub use localiser::PoseMap;
+pub use probe::{NoProbe, Probe, Stage};
 pub use status::{AgentStatus, PoseEstimate};

@@ -54,12 +54,18 @@ pub fn to_json(input: &Input, to_unix_ns: &dyn Fn(f64) -> u64) -> Value {
             v["yaw_rad"] = num(o.pose_odom.yaw_rad);
             v
         }
-        Input::Imu(i) => json!({
-            "timestamp": foxglove::time(stamp_ns(i.t_s, to_unix_ns)),
-            "frame_id": "base_link",
-            "linear_acceleration": {"x": num(i.accel_mps2[0]), "y": num(i.accel_mps2[1]), "z": num(i.accel_mps2[2])},
-            "stamp_s": num(i.t_s),
-        }),
+        Input::Imu(i) => {
+            let mut v = json!({
+                "timestamp": foxglove::time(stamp_ns(i.t_s, to_unix_ns)),
+                "frame_id": "base_link",
+                "linear_acceleration": {"x": num(i.accel_mps2[0]), "y": num(i.accel_mps2[1]), "z": num(i.accel_mps2[2])},
+                "stamp_s": num(i.t_s),
+            });
+            if let Some(g) = i.gyro_rps {
+                v["angular_velocity"] = json!({"x": num(g[0]), "y": num(g[1]), "z": num(g[2])});
+            }
+            v
+        }
         Input::Gnss(g) => json!({
             "timestamp": foxglove::time(stamp_ns(g.t_s, to_unix_ns)),
             "frame_id": "gnss",
@@ -161,6 +167,14 @@ pub fn from_json(kind: InputKind, bytes: &[u8]) -> Result<Input, InputError> {
                 num_at(&v, &["linear_acceleration", "y"])?,
                 num_at(&v, &["linear_acceleration", "z"])?,
             ],
+            gyro_rps: match v.get("angular_velocity") {
+                None => None,
+                Some(_) => Some([
+                    num_at(&v, &["angular_velocity", "x"])?,
+                    num_at(&v, &["angular_velocity", "y"])?,
+                    num_at(&v, &["angular_velocity", "z"])?,
+                ]),
+            },
         }),
         InputKind::Nmea => Input::Gnss(GnssSentence {
             t_s: stamp,
@@ -313,11 +327,22 @@ mod tests {
         let imu = ImuSample {
             t_s: t,
             accel_mps2: [0.1, f64::NAN, 9.81],
+            gyro_rps: None,
         };
         match round_trip(Input::Imu(imu), InputKind::Imu) {
             Input::Imu(i) => {
-                assert!(i.accel_mps2[0] == 0.1 && i.accel_mps2[1].is_nan() && i.t_s == t)
+                assert!(i.accel_mps2[0] == 0.1 && i.accel_mps2[1].is_nan() && i.t_s == t);
+                assert_eq!(i.gyro_rps, None);
             }
+            o => panic!("{o:?}"),
+        }
+        let gyro = ImuSample {
+            gyro_rps: Some([1e-3, -0.25, 1.0 / 7.0]),
+            accel_mps2: [0.0, 0.0, 9.81],
+            ..imu
+        };
+        match round_trip(Input::Imu(gyro), InputKind::Imu) {
+            Input::Imu(i) => assert_eq!(i.gyro_rps, gyro.gyro_rps),
             o => panic!("{o:?}"),
         }
         for (i, k) in [

@@ -11,6 +11,7 @@ pub mod live;
 pub mod map_eval;
 pub mod robot;
 pub mod ros2;
+pub mod stages;
 pub mod world;
 
 use crate::runtime::Input;
@@ -41,6 +42,8 @@ pub struct HeadlessOptions {
     pub map_png: Option<std::path::PathBuf>,
     /// Record the run to MCAP.
     pub mcap: Option<crate::record::RecordOptions>,
+    /// Record the wall time of the agent's stages ([`Rig::stage_times`]).
+    pub time_stages: bool,
 }
 
 impl Default for HeadlessOptions {
@@ -52,6 +55,7 @@ impl Default for HeadlessOptions {
             stop_on_collision: true,
             map_png: None,
             mcap: None,
+            time_stages: false,
         }
     }
 }
@@ -154,6 +158,9 @@ pub struct Rig {
     trajectory: Vec<(f64, f64)>,
     /// How sweeps reach the map.
     pub scan_mode: ScanMode,
+    /// When set, the wall time of every stage of the agent is recorded here (the pipeline
+    /// bench); the agent itself never reads a clock.
+    pub stage_times: Option<stages::StageTimes>,
     /// When set, drives the plant instead of the agent's command (a scripted survey drive).
     pub drive_override: Option<Cmd>,
     /// Tiles the agent published so far, with their encoded bytes.
@@ -219,6 +226,7 @@ impl Rig {
             outputs: None,
             publisher,
             scan_mode: ScanMode::Localised,
+            stage_times: None,
             drive_override: None,
             tiles_published: 0,
             tile_bytes: 0,
@@ -315,6 +323,7 @@ impl Rig {
         let mut ev = StepEvents::default();
         // The sensors' outputs reach the agent as the runtime hands them over (and in its
         // order), so that a recording of this run replays through the runtime call for call.
+        let t_inputs = Instant::now();
         let scan = out.scan.take();
         let mut inputs: Vec<Input> = Vec::with_capacity(2 + out.imu.len() + out.gnss.len());
         inputs.extend(out.odom.map(Input::Odom));
@@ -326,6 +335,10 @@ impl Rig {
             }
             crate::runtime::deliver(&mut self.agent, input);
         }
+        if let Some(times) = self.stage_times.as_mut() {
+            // GNSS fusion moves the frame, and the map follows: part of the robot's load.
+            times.add("odom_imu_gnss", t_inputs.elapsed().as_secs_f64() * 1e3);
+        }
         let scan_stamp = scan.as_ref().map(|s| s.stamp_s);
         if let Some(scan) = scan {
             let t0 = Instant::now();
@@ -335,7 +348,14 @@ impl Rig {
                     if let Some(r) = self.recorder.as_mut() {
                         r.input(&input);
                     }
-                    ev.slam_failed = crate::runtime::deliver(&mut self.agent, &input).slam_failed;
+                    ev.slam_failed = match (self.stage_times.as_mut(), &input) {
+                        // Timed by stage: the same agent call, with a probe.
+                        (Some(times), Input::Scan(s)) => {
+                            times.begin_sweep();
+                            self.agent.on_scan_probed(s, times).slam_failed
+                        }
+                        _ => crate::runtime::deliver(&mut self.agent, &input).slam_failed,
+                    };
                 }
                 ScanMode::TruthPoses => {
                     let (points, origin, robot) = self.truth_sweep(&scan);
@@ -380,10 +400,14 @@ impl Rig {
                 self.loc.tilt_mean_deg +=
                     (tilt - self.loc.tilt_mean_deg) / f64::from(self.loc.scans);
                 if trace_enabled() {
+                    let h = self.agent.localiser().health();
                     eprintln!(
-                        "trace scan t {:.1} {} mapped {}",
+                        "trace scan t {:.1} {} slam inliers {:.2} iter {} degenerate {} mapped {}",
                         self.t_s(),
                         self.pose_error_text(),
+                        h.inlier_ratio,
+                        h.iterations,
+                        h.degenerate,
                         self.agent.scans_not_mapped()
                     );
                 }
@@ -407,9 +431,17 @@ impl Rig {
             self.next_control_s += CONTROL_DT_S;
             let t0 = Instant::now();
             if self.agent.plan_if_due(t) {
-                self.plan.add(t0.elapsed().as_secs_f64() * 1e3);
+                let ms = t0.elapsed().as_secs_f64() * 1e3;
+                self.plan.add(ms);
+                if let Some(times) = self.stage_times.as_mut() {
+                    times.add("planning", ms);
+                }
             }
+            let t1 = Instant::now();
             self.cmd = self.agent.control(t);
+            if let Some(times) = self.stage_times.as_mut() {
+                times.add("control", t1.elapsed().as_secs_f64() * 1e3);
+            }
             if let Some(r) = self.recorder.as_mut() {
                 r.control(t, &self.agent, self.cmd);
             }
@@ -578,6 +610,9 @@ pub fn run_goal_rig(
     let mut rig = Rig::new(scenario, cfg, opts, "sim")?;
     if let Some(m) = &opts.mcap {
         rig.record_to(m, &format!("sim:{}", scenario.name), true)?;
+    }
+    if opts.time_stages {
+        rig.stage_times = Some(stages::StageTimes::default());
     }
     let wall = Instant::now();
     // Let the first scans arrive so the map frame is anchored before the goal is converted.
