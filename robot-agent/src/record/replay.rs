@@ -274,7 +274,8 @@ fn control_of(data: &[u8]) -> anyhow::Result<Event> {
 
 /// A bag's events.
 enum BagReader {
-    Mcap(Reader),
+    // Boxed: the MCAP reader's buffers are large beside the SQLite handle.
+    Mcap(Box<Reader>),
     Db3(Db3),
 }
 
@@ -325,9 +326,10 @@ impl BagSource {
     }
 }
 
+// Both boxed: each holds a reader with large buffers, and only one exists per replay.
 enum Source {
-    Recording(RecordingSource),
-    Bag(BagSource),
+    Recording(Box<RecordingSource>),
+    Bag(Box<BagSource>),
 }
 
 impl Source {
@@ -398,13 +400,13 @@ pub fn run_replay(opts: ReplayOptions, stop: Arc<AtomicBool>) -> anyhow::Result<
         );
         let streams = decoder.streams();
         Ok((
-            Source::Bag(BagSource {
+            Source::Bag(Box::new(BagSource {
                 reader,
                 decoder,
                 pending: VecDeque::new(),
                 truncated: None,
                 ended: false,
-            }),
+            })),
             streams,
         ))
     };
@@ -427,12 +429,12 @@ pub fn run_replay(opts: ReplayOptions, stop: Arc<AtomicBool>) -> anyhow::Result<
                 .as_ref()
                 .map(|m| m.inputs.clone())
                 .unwrap_or_default();
-            (Source::Recording(s), streams)
+            (Source::Recording(Box::new(s)), streams)
         } else {
             anyhow::ensure!(files.len() == 1, "a ROS 2 MCAP bag is one file");
             report.format = "ros2-mcap".into();
             let topics = mcap_topics(&files[0])?;
-            bag(BagReader::Mcap(Reader::open(&files[0])?), topics)?
+            bag(BagReader::Mcap(Box::new(Reader::open(&files[0])?)), topics)?
         }
     };
     if let Source::Bag(b) = &source {

@@ -190,7 +190,7 @@ impl Outputs {
             if let Some(bus) = bus {
                 bus.publish_path(&wire);
             }
-            if let Some(r) = rec.as_deref_mut() {
+            if let Some(r) = rec {
                 r.path(&path, t_s);
             }
             self.last_path = path;
