@@ -6,6 +6,7 @@ pub mod alerts;
 pub mod api;
 pub mod basemap;
 pub mod cli;
+pub mod export;
 pub mod fleet;
 pub mod merge;
 pub mod missions;

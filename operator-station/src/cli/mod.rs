@@ -158,6 +158,9 @@ pub struct DemoArgs {
     /// Operator options shared with `serve`.
     #[command(flatten)]
     pub ops: OpsArgs,
+    /// Record each robot's session to MCAP in this folder (`husky-N.mcap`).
+    #[arg(long, value_name = "DIR")]
+    pub record_mcap: Option<PathBuf>,
 }
 
 /// Options of commands that talk to robots directly.
@@ -210,17 +213,34 @@ pub struct ExportArgs {
 /// Export targets.
 #[derive(Debug, Clone, Subcommand)]
 pub enum ExportWhat {
-    /// The merged map of a datum as PNG (north up).
+    /// The merged map of a datum as PNG (north up) and/or GeoTIFF (height, class and cost bands,
+    /// georeferenced; needs a GNSS datum).
     Map {
         /// Output PNG.
+        #[arg(long, required_unless_present = "geotiff")]
+        png: Option<PathBuf>,
+        /// Output GeoTIFF.
         #[arg(long)]
-        png: PathBuf,
+        geotiff: Option<PathBuf>,
         /// Datum id (default: the one with most tiles).
         #[arg(long)]
         datum: Option<String>,
         /// Pixels per cell along each side (1 = one pixel per 0.2 m cell).
         #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=8))]
         px_per_cell: u32,
+        /// Database file.
+        #[arg(long, default_value = "terranav-station.sqlite")]
+        db: PathBuf,
+    },
+    /// A session as MCAP (Foxglove, Lichtblick): poses, track, paths, goals, routes, and the
+    /// merged map of its datum as a grid and as tiles.
+    Session {
+        /// Session id.
+        #[arg(long)]
+        session: String,
+        /// Output MCAP.
+        #[arg(long)]
+        mcap: PathBuf,
         /// Database file.
         #[arg(long, default_value = "terranav-station.sqlite")]
         db: PathBuf,
@@ -414,11 +434,31 @@ pub fn robot_agent_bin() -> PathBuf {
     PathBuf::from("robot-agent")
 }
 
-/// The demo's robot processes, each with what it is (`husky-1 world`).
-struct Children(Vec<(String, Child)>);
+/// The demo's robot processes, each with what it is (`husky-1 world`), and whether the robots
+/// record (then they are asked to stop first, so that their recordings close).
+struct Children(Vec<(String, Child)>, bool);
 
 impl Drop for Children {
     fn drop(&mut self) {
+        if self.1 {
+            // Recording agents are asked to stop (SIGTERM) so that they close their files with
+            // summaries; those that do not within 5 s are killed (their files still read up to
+            // the last closed chunk).
+            for (_, c) in self.0.iter().filter(|(what, _)| what.ends_with(" agent")) {
+                let _ = Command::new("kill")
+                    .args(["-TERM", &c.id().to_string()])
+                    .status();
+            }
+            let until = std::time::Instant::now() + Duration::from_secs(5);
+            while std::time::Instant::now() < until
+                && self
+                    .0
+                    .iter_mut()
+                    .any(|(what, c)| what.ends_with(" agent") && matches!(c.try_wait(), Ok(None)))
+            {
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        }
         for (_, c) in &mut self.0 {
             let _ = c.kill();
             let _ = c.wait();
@@ -453,6 +493,7 @@ async fn stop_signal() {
 /// topics on its own Zenoh endpoint (`robot-agent sim --serve-ros2`, the robot's "hardware"),
 /// and `robot-agent run` on those topics, connected to the station. The agent takes the world's
 /// datum so every robot maps in one frame, as robots sharing a site datum do.
+#[allow(clippy::too_many_arguments)] // one robot's launch line, each argument a flag of it
 fn start_robot(
     agent: &Path,
     scenario: &Path,
@@ -460,6 +501,7 @@ fn start_robot(
     seed: u32,
     start: &str,
     station_endpoint: &str,
+    mcap: Option<PathBuf>,
     children: &mut Children,
 ) -> anyhow::Result<()> {
     use std::io::BufRead;
@@ -504,8 +546,12 @@ fn start_robot(
         .ok()
         .and_then(|v| v["datum"].as_str().map(str::to_owned))
         .with_context(|| format!("the world's first line names no datum: {first}"))?;
-    let run = Command::new(agent)
-        .args(["run", "--robot", robot, "--connect", station_endpoint])
+    let mut run = Command::new(agent);
+    run.args(["run", "--robot", robot, "--connect", station_endpoint]);
+    if let Some(path) = &mcap {
+        run.arg("--mcap").arg(path);
+    }
+    let run = run
         .args(["--ros2-connect", &hw_endpoint, "--heading", "ros2:heading"])
         .args(["--datum", &datum, "--exit-with-parent"])
         .stdin(Stdio::null())
@@ -563,7 +609,10 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
             a.scenario.clone()
         }
     };
-    let mut children = Children(Vec::new());
+    let mut children = Children(Vec::new(), a.record_mcap.is_some());
+    if let Some(dir) = &a.record_mcap {
+        std::fs::create_dir_all(dir).with_context(|| format!("--record-mcap {}", dir.display()))?;
+    }
     for i in 1..=a.robots {
         let robot = format!("husky-{i}");
         // Distinct start poses: a row 4 m apart, all facing east.
@@ -575,6 +624,9 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
             i,
             &start,
             &endpoint,
+            a.record_mcap
+                .as_ref()
+                .map(|d| d.join(format!("{robot}.mcap"))),
             &mut children,
         )?;
     }
@@ -849,8 +901,14 @@ async fn stop(a: StopArgs) -> anyhow::Result<()> {
 
 fn export(a: ExportArgs) -> anyhow::Result<()> {
     match a.what {
+        ExportWhat::Session { session, mcap, db } => {
+            let c = open_existing(&db)?;
+            let e = crate::export::mcap::export_session(&c, &session, &mcap)?;
+            println!("{}", serde_json::to_string(&e)?);
+        }
         ExportWhat::Map {
             png,
+            geotiff,
             datum,
             px_per_cell,
             db,
@@ -879,11 +937,35 @@ fn export(a: ExportArgs) -> anyhow::Result<()> {
                     datums.iter().map(|d| &d.datum_id).collect::<Vec<_>>()
                 )
             })?;
-            let bytes = crate::merge::datum_png_scaled(dm, px_per_cell).context("empty map")?;
-            std::fs::write(&png, bytes).with_context(|| format!("write {}", png.display()))?;
+            if let Some(png) = &png {
+                let bytes = crate::merge::datum_png_scaled(dm, px_per_cell).context("empty map")?;
+                std::fs::write(png, bytes).with_context(|| format!("write {}", png.display()))?;
+            }
+            let mut geo = None;
+            if let Some(out) = &geotiff {
+                let row = datums
+                    .iter()
+                    .find(|d| d.datum_id == pick)
+                    .with_context(|| format!("datum {pick} is not in the database"))?;
+                let (Some(lat_deg), Some(lon_deg)) = (row.lat_deg, row.lon_deg) else {
+                    bail!(
+                        "datum {pick} is a local (SLAM-only) frame: a GeoTIFF needs a GNSS datum"
+                    );
+                };
+                let d = msg::Datum {
+                    lat_deg,
+                    lon_deg,
+                    h_m: row.h_m.unwrap_or(0.0),
+                };
+                let f = std::fs::File::create(out)
+                    .with_context(|| format!("create {}", out.display()))?;
+                let info = crate::export::geotiff::write(dm, &d, &pick, std::io::BufWriter::new(f))
+                    .with_context(|| format!("write {}", out.display()))?;
+                geo = Some(info);
+            }
             println!(
                 "{}",
-                serde_json::json!({"datum_id": pick, "tiles": dm.tiles.len(), "bounds_m": dm.bounds_m(), "png": png})
+                serde_json::json!({"datum_id": pick, "tiles": dm.tiles.len(), "bounds_m": dm.bounds_m(), "png": png, "geotiff": geotiff, "raster": geo})
             );
         }
         ExportWhat::Track {

@@ -550,6 +550,46 @@ pub fn track(c: &Connection, session_id: &str) -> Result<Vec<(u64, f64, f64, f64
     Ok(rows)
 }
 
+/// The paths a session published: (t_unix_ms, goal_id, `Path` JSON), oldest first.
+pub fn paths(c: &Connection, session_id: &str) -> Result<Vec<(u64, u32, String)>, StoreError> {
+    let mut st = c.prepare(
+        "SELECT t_unix_ms, goal_id, json FROM paths WHERE session_id = ?1 ORDER BY t_unix_ms",
+    )?;
+    let rows = st
+        .query_map(params![session_id], |r| {
+            Ok((r.get::<_, i64>(0)? as u64, r.get(1)?, r.get(2)?))
+        })?
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(rows)
+}
+
+/// The goals sent to `robot` within `[t0, t1]` Unix ms: (t_unix_ms, goal_id, `GoalCmd` JSON).
+pub fn goals(
+    c: &Connection,
+    robot: &str,
+    t0_unix_ms: u64,
+    t1_unix_ms: u64,
+) -> Result<Vec<(u64, u32, String)>, StoreError> {
+    let mut st = c.prepare(
+        "SELECT t_unix_ms, goal_id, json FROM goals WHERE robot = ?1 AND t_unix_ms BETWEEN ?2 AND ?3 ORDER BY t_unix_ms, id",
+    )?;
+    let rows = st
+        .query_map(params![robot, t0_unix_ms as i64, t1_unix_ms as i64], |r| {
+            Ok((r.get::<_, i64>(0)? as u64, r.get(1)?, r.get(2)?))
+        })?
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(rows)
+}
+
+/// The routes taught in a session: `Route` JSON.
+pub fn session_routes(c: &Connection, session_id: &str) -> Result<Vec<String>, StoreError> {
+    let mut st = c.prepare("SELECT json FROM routes WHERE session_id = ?1 ORDER BY route_id")?;
+    let rows = st
+        .query_map(params![session_id], |r| r.get(0))?
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(rows)
+}
+
 /// Route summaries.
 pub fn routes(c: &Connection) -> Result<Vec<RouteRow>, StoreError> {
     let mut st = c.prepare(

@@ -19,7 +19,7 @@ use planning::{CellXY, PlanGrid};
 pub const EXIT_PENALTY_M: f32 = 50.0;
 
 /// What a zone does.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum ZoneRule {
     /// Never planned through; goals inside are refused.
     KeepOut,
@@ -28,7 +28,7 @@ pub enum ZoneRule {
 }
 
 /// One zone in the map frame.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ZoneShape {
     /// Id chosen by the station.
     pub id: String,

@@ -58,6 +58,9 @@ pub struct MissionArgs {
     /// path (truth; for teach and repeat the return) and the goal into this PNG at the end.
     #[arg(long, value_name = "FILE")]
     pub png: Option<PathBuf>,
+    /// Record the run to MCAP (headless missions and the live robot).
+    #[command(flatten)]
+    pub mcap: crate::record::McapArgs,
 }
 
 impl MissionArgs {
@@ -93,6 +96,8 @@ fn agent_config(args: &MissionArgs) -> anyhow::Result<AgentConfig> {
 }
 
 fn options(args: &MissionArgs, seed: u64) -> anyhow::Result<HeadlessOptions> {
+    let dir = args.config_dir.clone().unwrap_or_else(default_config_dir);
+    let mcap = args.mcap.options(&dir, &dir.join("robot.toml"))?;
     let start = match &args.start {
         Some(s) => {
             let v = numbers(s, "--start", 3..=3)?;
@@ -106,6 +111,7 @@ fn options(args: &MissionArgs, seed: u64) -> anyhow::Result<HeadlessOptions> {
         start,
         map_png: args.png.clone(),
         truth_out: args.truth_out.clone(),
+        mcap,
         ..HeadlessOptions::default()
     })
 }
@@ -187,6 +193,8 @@ pub fn run_live(
         };
     }
     let stop = Arc::new(AtomicBool::new(false));
+    // SIGINT/SIGTERM end the loop, so that a recording closes with its summary.
+    super::run::stop_on_signals(stop.clone())?;
     if args.exit_with_parent {
         watch_parent(stop.clone());
     }

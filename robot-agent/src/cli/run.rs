@@ -85,6 +85,20 @@ pub struct RunArgs {
     /// Stop when the parent process exits (how `operator-station demo` runs its robots).
     #[arg(long)]
     pub exit_with_parent: bool,
+    /// Recording (`--mcap PATH`, `--mcap-split-mb`, `--mcap-split-s`).
+    #[command(flatten)]
+    pub record: crate::record::McapArgs,
+    /// Replay a recording (an MCAP file or folder of one, or a ROS 2 bag: MCAP or `.db3`) through
+    /// the runtime instead of running on sensors; the report is the last line. The outputs go to a
+    /// station only with --connect or --zenoh.
+    #[arg(long, value_name = "FILE")]
+    pub replay: Option<PathBuf>,
+    /// Replay at this multiple of the recorded time.
+    #[arg(long, value_name = "X", default_value_t = 1.0, requires = "replay")]
+    pub speed: f64,
+    /// Replay as fast as the CPU allows.
+    #[arg(long, requires = "replay", conflicts_with = "speed")]
+    pub as_fast_as_possible: bool,
 }
 
 /// One input's spec, checked.
@@ -207,6 +221,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         bus.zenoh = station.clone();
     }
 
+    let record = args.record.options(&dir, &robot_file)?;
+    if let Some(path) = &args.replay {
+        return replay(&args, path, cfg, limits, &io, bus, record);
+    }
     let mut lidar = spec("lidar", &args.lidar, &io.lidar)?;
     let depth = spec("depth", &args.depth, &io.depth)?;
     let odom = spec("odom", &args.odom, &io.odom)?;
@@ -359,10 +377,62 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             base,
             source_name: names.join(" "),
             print_fixes: args.print_fixes,
+            record,
         },
         stop,
     )?;
     drop(link);
     println!("{summary}");
+    Ok(())
+}
+
+/// `run --replay`.
+fn replay(
+    args: &RunArgs,
+    path: &std::path::Path,
+    cfg: agent::AgentConfig,
+    limits: crate::runtime::RuntimeLimits,
+    io: &IoConfig,
+    bus: BusConfig,
+    record: Option<crate::record::RecordOptions>,
+) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.speed.is_finite() && args.speed > 0.0,
+        "--speed must be > 0"
+    );
+    // The bag topics the robot's specs name.
+    let topic = |name: &str, cli: &Option<String>, file: &str| -> anyhow::Result<Option<String>> {
+        Ok(match spec(name, cli, file)? {
+            Some(SourceSpec::Ros2 { topic }) => Some(topic),
+            _ => None,
+        })
+    };
+    let topics = crate::record::rosbag::BagTopics {
+        lidar: topic("lidar", &args.lidar, &io.lidar)?,
+        depth: topic("depth", &args.depth, &io.depth)?,
+        odom: topic("odom", &args.odom, &io.odom)?,
+        imu: topic("imu", &args.imu, &io.imu)?,
+        fix: topic("gnss", &args.gnss, &io.gnss)?,
+        heading: topic("heading", &args.heading, &io.heading)?,
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    stop_on_signals(stop.clone())?;
+    let report = crate::record::replay::run_replay(
+        crate::record::replay::ReplayOptions {
+            path: path.to_path_buf(),
+            speed: (!args.as_fast_as_possible).then_some(args.speed),
+            config: (cfg, limits),
+            override_config: args.config.is_some(),
+            robot: args.robot.clone(),
+            topics,
+            bus: (args.zenoh.is_some() || !args.connect.is_empty()).then_some(bus),
+            record,
+        },
+        stop,
+    )?;
+    if report.digest_match == Some(false) {
+        tracing::warn!("the replay's digest differs from the recording's");
+    }
+    println!("{}", serde_json::to_string(&report)?);
     Ok(())
 }

@@ -72,6 +72,8 @@ pub struct RobotRun {
     pub source_name: String,
     /// Print every GNSS fix the agent takes as a JSON line on stdout (`{"fix": {...}}`).
     pub print_fixes: bool,
+    /// Record the session to MCAP (`--mcap`).
+    pub record: Option<crate::record::RecordOptions>,
 }
 
 fn wall_unix_ms() -> u64 {
@@ -102,9 +104,26 @@ pub fn run_robot(mut r: RobotRun, stop: Arc<AtomicBool>) -> anyhow::Result<serde
     };
     let mut rt = rt;
     let mut outputs = Outputs::new(rt.agent(), &r.source_name);
+    let mut rec = match &r.record {
+        Some(opts) => {
+            let cfg = rt.agent().config();
+            let meta = crate::record::SessionMeta {
+                identity: rt.agent().identity().clone(),
+                t0_s: rt.t0_s(),
+                source: r.source_name.clone(),
+                inputs: r.inputs.clone(),
+                config_files: opts.config_files.clone(),
+                datum: cfg.datum,
+                config_digest: crate::record::config_digest(cfg),
+            };
+            Some(crate::record::SessionRecorder::start(opts, &meta, cfg)?)
+        }
+        None => None,
+    };
     let mut clock = LoopClock::default();
     let mut pending = Some(first);
     let mut fault_log = FaultLog::default();
+    let mut last_rec_faults: Vec<String> = Vec::new();
     while !stop.load(Ordering::Relaxed) {
         let event = match pending.take() {
             Some(e) => Some(e),
@@ -121,6 +140,9 @@ pub fn run_robot(mut r: RobotRun, stop: Arc<AtomicBool>) -> anyhow::Result<serde
         if let Some(e) = event {
             match e {
                 SourceEvent::Input(input) => {
+                    if let Some(rec) = rec.as_mut() {
+                        rec.input(&input);
+                    }
                     if let crate::runtime::Admitted::Yes { scan } = rt.on_input(input) {
                         scanned = scan;
                         if let Some(t) = rt.newest_s() {
@@ -134,15 +156,25 @@ pub fn run_robot(mut r: RobotRun, stop: Arc<AtomicBool>) -> anyhow::Result<serde
                 SourceEvent::Undecodable(topic, why) => {
                     rt.count_undecodable(topic);
                     tracing::debug!("undecodable {topic} message: {why}");
+                    if let Some(rec) = rec.as_mut() {
+                        rec.undecodable(&topic.to_string(), &why, clock.now_s());
+                    }
                 }
                 SourceEvent::Ended(topic, why) => tracing::warn!("{topic} driver ended: {why}"),
             }
         }
         let now = clock.now_s();
         while let Some(cmd) = bus.try_recv() {
-            apply_command(rt.agent_mut(), now, cmd);
+            let applied = apply_command(rt.agent_mut(), now, cmd);
+            if let (Some(rec), Some(c)) = (rec.as_mut(), applied) {
+                rec.command(&c);
+            }
         }
         if let Some(cmd) = rt.control(now) {
+            if let Some(rec) = rec.as_mut() {
+                // The control time a replay runs control at (this loop's clock is the wall's).
+                rec.control(now, rt.agent(), cmd);
+            }
             if let Err(e) = r.base.drive(cmd) {
                 tracing::warn!("base command: {e:#}");
             }
@@ -151,22 +183,50 @@ pub fn run_robot(mut r: RobotRun, stop: Arc<AtomicBool>) -> anyhow::Result<serde
         let (began, ended) = fault_log.note(&in_force);
         for f in in_force.iter().filter(|f| began.contains(&f.topic)) {
             tracing::warn!("{f}");
+            if let Some(rec) = rec.as_mut() {
+                rec.log(
+                    record::foxglove::level::WARNING,
+                    "runtime",
+                    &f.to_string(),
+                    now,
+                );
+            }
+        }
+        let rec_faults = crate::run::live::recording_faults(rec.as_ref());
+        if rec_faults != last_rec_faults {
+            for f in rec_faults.iter().filter(|f| !last_rec_faults.contains(f)) {
+                tracing::warn!("{f}");
+            }
+            last_rec_faults = rec_faults.clone();
         }
         for topic in ended {
             tracing::info!("{topic} is back");
         }
-        let faults: Vec<String> = in_force.iter().map(ToString::to_string).collect();
+        let mut faults: Vec<String> = in_force.iter().map(ToString::to_string).collect();
+        faults.extend(rec_faults);
         let counters = LoopCounters {
             collisions: 0,
             bad_inputs: rt.bad_inputs(),
             faults,
         };
-        outputs.publish(&bus, rt.agent_mut(), now, scanned, &counters);
+        outputs.publish(
+            Some(&bus),
+            rec.as_mut(),
+            rt.agent_mut(),
+            now,
+            scanned,
+            &counters,
+        );
     }
     for t in threads {
         let _ = t.join();
     }
-    close(bus, r.base.as_mut(), Some((&rt, &fault_log)))
+    let record = rec.map(|rec| rec.finish(Some(rt.agent())));
+    let mut summary = close(bus, r.base.as_mut(), Some((&rt, &fault_log)))?;
+    if let Some(record) = record {
+        summary["record"] = serde_json::to_value(record)?;
+    }
+    Ok(summary)
 }
 
 /// One JSON line on stdout, flushed (a reader may act on it at once).

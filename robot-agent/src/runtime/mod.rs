@@ -175,6 +175,93 @@ pub struct Runtime {
     scans_before_anchor: u64,
 }
 
+/// A command as it reaches the agent, with its time on the agent's clock: one to carry out, or
+/// one the bus refused (shown in the status). What a recording keeps and a replay re-applies.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AgentCommand {
+    /// Carry it out.
+    Do(agent::Command),
+    /// Refused by the bus's checks.
+    Refused {
+        /// When, seconds on the agent's clock.
+        t_s: f64,
+        /// Why.
+        refusal: common::command::Refusal,
+    },
+}
+
+impl AgentCommand {
+    /// A command from the bus at session time `t_s` (`None`: one the agent has no use for).
+    pub fn from_bus(t_s: f64, cmd: crate::bus::Command) -> Option<Self> {
+        match cmd {
+            crate::bus::Command::Refused(refusal) => Some(Self::Refused { t_s, refusal }),
+            cmd => crate::bus::translate::command_to_agent(cmd)
+                .map(|kind| Self::Do(agent::Command::at(t_s, kind))),
+        }
+    }
+
+    /// Its time, seconds on the agent's clock.
+    pub fn t_s(&self) -> f64 {
+        match self {
+            Self::Do(c) => c.t_s,
+            Self::Refused { t_s, .. } => *t_s,
+        }
+    }
+
+    /// Hands it to the agent (a refusal is counted and logged by the agent).
+    pub fn apply(&self, agent: &mut Agent) {
+        match self {
+            Self::Do(c) => {
+                let _ = agent.on_command(c.clone());
+            }
+            Self::Refused { refusal, .. } => agent.note_refusal(refusal),
+        }
+    }
+}
+
+/// What [`deliver`] did with one input.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Delivered {
+    /// A sweep or depth frame was processed (tiles may have changed).
+    pub scan: bool,
+    /// SLAM fell back to its prior on this sweep.
+    pub slam_failed: bool,
+}
+
+/// Hands one input, on the agent's clock, to the agent. The runtime calls it for every input its
+/// gate admits, and the simulator rig for each of its sensor outputs: the same calls in the same
+/// order, so a recording of either replays through the runtime call for call.
+pub fn deliver(agent: &mut Agent, input: &Input) -> Delivered {
+    let mut d = Delivered::default();
+    match input {
+        Input::Scan(s) => {
+            let rep = if s.points.iter().all(sensing::Point::is_finite) {
+                agent.on_scan(s)
+            } else {
+                let mut s = s.clone();
+                let dropped = s.retain_finite();
+                tracing::trace!("{dropped} non-finite points dropped");
+                agent.on_scan(&s)
+            };
+            d.slam_failed = rep.slam_failed;
+            d.scan = true;
+        }
+        Input::Depth(s) => {
+            if let Err(e) = agent.on_depth(s) {
+                tracing::warn!("{e}");
+            }
+            d.scan = true;
+        }
+        Input::Odom(o) => agent.on_odom(*o),
+        Input::Imu(i) => agent.on_imu(i),
+        Input::Gnss(g) => agent.on_gnss(g),
+        Input::Fix(f) => agent.on_gnss_fix(f),
+        Input::Heading(h) => agent.on_gnss_heading(h),
+    }
+    d
+}
+
 /// Control period, seconds (20 Hz, methods.md §6).
 pub const CONTROL_DT_S: f64 = 0.05;
 
@@ -200,15 +287,26 @@ impl Runtime {
         } else {
             wall_unix_ms
         };
-        let agent = Agent::new(
-            cfg,
-            Identity {
-                robot: robot.to_string(),
-                session_id: format!("{robot}-{start_unix_ms}"),
-                start_unix_ms,
-            },
-        )
-        .map_err(|e| anyhow::anyhow!("mapper configuration: {e}"))?;
+        let identity = Identity {
+            robot: robot.to_string(),
+            session_id: format!("{robot}-{start_unix_ms}"),
+            start_unix_ms,
+        };
+        Self::resume(cfg, limits, identity, inputs, t0_s)
+    }
+
+    /// The runtime of a session whose identity and clock origin are known already (a replay:
+    /// the recorded ones, so that every stamp and tile comes out as it did). `t0_s` is the
+    /// header stamp of session time 0.
+    pub fn resume(
+        cfg: AgentConfig,
+        limits: RuntimeLimits,
+        identity: Identity,
+        inputs: &[Topic],
+        t0_s: f64,
+    ) -> anyhow::Result<Self> {
+        let agent =
+            Agent::new(cfg, identity).map_err(|e| anyhow::anyhow!("mapper configuration: {e}"))?;
         Ok(Self {
             agent,
             gate: StampGate::new(limits.stamps),
@@ -228,6 +326,11 @@ impl Runtime {
                 .then_some(0.5 + limits.anchor_wait_s),
             scans_before_anchor: 0,
         })
+    }
+
+    /// The header stamp of session time 0, seconds.
+    pub fn t0_s(&self) -> f64 {
+        self.t0_s
     }
 
     /// The agent.
@@ -262,31 +365,12 @@ impl Runtime {
         self.watchdog.heard(topic, t);
         self.accepted[topic as usize] += 1;
         let mut scan = false;
-        match &input {
-            Input::Scan(_) if self.holds_for_anchor(t) => {
-                self.scans_before_anchor += 1;
-            }
-            Input::Scan(s) => {
-                let mut s = s.clone();
-                let dropped = s.retain_finite();
-                if dropped > 0 {
-                    tracing::trace!("{dropped} non-finite points dropped");
-                }
-                let rep = self.agent.on_scan(&s);
-                self.slam_fallbacks += u64::from(rep.slam_failed);
-                scan = true;
-            }
-            Input::Depth(s) => {
-                if let Err(e) = self.agent.on_depth(s) {
-                    tracing::warn!("{e}");
-                }
-                scan = true;
-            }
-            Input::Odom(o) => self.agent.on_odom(*o),
-            Input::Imu(i) => self.agent.on_imu(i),
-            Input::Gnss(g) => self.agent.on_gnss(g),
-            Input::Fix(f) => self.agent.on_gnss_fix(f),
-            Input::Heading(h) => self.agent.on_gnss_heading(h),
+        if matches!(input, Input::Scan(_)) && self.holds_for_anchor(t) {
+            self.scans_before_anchor += 1;
+        } else {
+            let d = deliver(&mut self.agent, &input);
+            self.slam_fallbacks += u64::from(d.slam_failed);
+            scan = d.scan;
         }
         if topic == Topic::Gnss {
             self.note_fix(t);
