@@ -1,8 +1,8 @@
-//! One mapper update after a 10 Hz VLP-16 sweep (methods.md §4; goal ≤ 10 ms on one core, the
-//! source system needed 547 ms mean), measured on realistic sweeps: the simulated VLP-16 in the
-//! built-in `park` world (grass, curbs, trees, benches, walkers), driving a 10 m loop at
-//! 0.8 m/s, mapped at the true poses. The mapper is warmed up over the loop first, so every
-//! measured update is steady-state work on a grid that already holds the surroundings.
+//! One mapper update after a 10 Hz VLP-16 sweep (docs/algorithms.md §4; goal ≤ 10 ms on one core,
+//! the source system needed 547 ms mean), measured on realistic sweeps: the simulated VLP-16 in the
+//! built-in `park` world (grass, curbs, trees, benches, walkers), driving a 10 m loop at 0.8 m/s,
+//! mapped at the true poses. The mapper is warmed up over the loop first, so every measured update
+//! is steady-state work on a grid that already holds the surroundings.
 //!
 //! Baseline, same run: the same update with full reclassification of the 300 x 300 window
 //! (what a non-incremental mapper does every sweep). Criterion prints both; the ratio is the
