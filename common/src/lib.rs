@@ -6,6 +6,7 @@
 //! - [`grid`]: traversability cell states, map tiles on the fixed map-frame lattice, and the tile codec.
 //! - [`geo`]: WGS-84 geodetic / ECEF / ENU conversions and NMEA-0183 sentences.
 //! - [`geom`]: small SE(2)/SE(3) helpers over nalgebra.
+//! - [`zone`]: polygon geometry of keep-out and slow zones (inside, distance, checks).
 //! - [`robot`]: the robot profile (body, limits, sensor mounts) that agent, simulator and station read.
 #![deny(missing_docs)]
 
@@ -16,3 +17,4 @@ pub mod grid;
 pub mod keys;
 pub mod msg;
 pub mod robot;
+pub mod zone;

@@ -20,3 +20,4 @@ pub mod config;
 pub mod navcomp;
 pub mod run;
 pub mod runtime;
+pub mod truth_log;

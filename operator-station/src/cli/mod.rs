@@ -11,6 +11,7 @@ use std::time::Duration;
 
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
+use common::command::{check_goal, CommandLimits, RobotContext};
 use common::keys::{self, RobotId, Topic};
 use common::msg::{self, GoalCmd, GoalTarget, Session, StopCmd};
 use zenoh::query::ConsolidationMode;
@@ -85,6 +86,54 @@ pub struct ServeArgs {
     /// Directory of the web UI (default: found next to the binary or in the working directory).
     #[arg(long)]
     pub web: Option<PathBuf>,
+    /// Operator options shared with `demo`.
+    #[command(flatten)]
+    pub ops: OpsArgs,
+}
+
+/// Options of the operator's day, shared by `serve` and `demo`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct OpsArgs {
+    /// Background map drawn under the traversability map: a folder of {z}/{x}/{y}.png|jpg
+    /// tiles (XYZ; TMS with gdal2tiles' tilemapresource.xml) or an MBTiles file. Served
+    /// locally; nothing is fetched from the network.
+    #[arg(long, value_name = "PATH")]
+    pub basemap: Option<PathBuf>,
+    /// A robot on a mission that has not come 0.5 m closer to its goal for this long raises a
+    /// "stuck" alert, seconds.
+    #[arg(long, default_value_t = 30.0)]
+    pub stuck_after_s: f64,
+}
+
+impl OpsArgs {
+    fn alerts(&self) -> anyhow::Result<crate::alerts::AlertConfig> {
+        if !(self.stuck_after_s.is_finite() && self.stuck_after_s > 0.0) {
+            bail!("--stuck-after-s must be a positive number of seconds");
+        }
+        Ok(crate::alerts::AlertConfig {
+            stuck_after_s: self.stuck_after_s,
+            ..crate::alerts::AlertConfig::default()
+        })
+    }
+
+    fn basemap(&self) -> anyhow::Result<Option<std::sync::Arc<crate::basemap::Basemap>>> {
+        self.basemap
+            .as_deref()
+            .map(|p| {
+                let b = crate::basemap::Basemap::open(p)?;
+                let i = b.info();
+                eprintln!(
+                    "basemap {}: {} tiles, zoom {}-{} ({})",
+                    p.display(),
+                    i.format,
+                    i.min_zoom,
+                    i.max_zoom,
+                    i.scheme
+                );
+                Ok(std::sync::Arc::new(b))
+            })
+            .transpose()
+    }
 }
 
 /// `demo` options.
@@ -99,12 +148,16 @@ pub struct DemoArgs {
     /// HTTP port.
     #[arg(long, default_value_t = 8080)]
     pub port: u16,
-    /// Zenoh port on 127.0.0.1 (0 = pick a free one).
-    #[arg(long, default_value_t = 0)]
-    pub zenoh_port: u16,
-    /// Database file (default: a fresh temporary one).
+    /// Zenoh port on 127.0.0.1 [default: 7447, the port `robots`, `goal` and `stop` connect
+    /// to, or a free one when 7447 is taken (the demo prints it)].
+    #[arg(long)]
+    pub zenoh_port: Option<u16>,
+    /// Database file (default: a fresh temporary one, removed when the demo ends).
     #[arg(long)]
     pub db: Option<PathBuf>,
+    /// Operator options shared with `serve`.
+    #[command(flatten)]
+    pub ops: OpsArgs,
 }
 
 /// Options of commands that talk to robots directly.
@@ -251,7 +304,7 @@ pub async fn serve(a: ServeArgs) -> anyhow::Result<()> {
     let addr = http_addr(a.listen, a.port, a.token.as_deref())?;
     let zc = zenoh_config(&a.z, Some(DEFAULT_LISTEN_ENDPOINT))?;
     let web = a.web.clone().or_else(api::find_web_dir);
-    let running = start_station(zc, &a.db, addr, a.token.clone(), web).await?;
+    let running = start_station(zc, &a.db, addr, a.token.clone(), web, &a.ops).await?;
     println!(
         "operator station: http://{addr}/  (database {})",
         a.db.display()
@@ -283,13 +336,17 @@ pub async fn start_station(
     addr: SocketAddr,
     token: Option<String>,
     web: Option<PathBuf>,
+    ops: &OpsArgs,
 ) -> anyhow::Result<Running> {
+    let alerts = ops.alerts()?;
+    let basemap = ops.basemap()?;
     let listener = tokio::net::TcpListener::bind(addr)
         .await
         .with_context(|| format!("bind HTTP {addr}"))?;
     let station = Station::start(StationOptions {
         zenoh: zc,
         db: db.to_path_buf(),
+        alerts,
     })
     .await
     .context("start the station")?;
@@ -300,6 +357,7 @@ pub async fn start_station(
         AppState {
             inner: station.inner.clone(),
             token,
+            basemap,
         },
         web,
     );
@@ -461,24 +519,36 @@ fn start_robot(
 /// Station plus simulated robots until Ctrl-C (or SIGTERM / SIGHUP).
 pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
     let addr = http_addr(None, a.port, None)?;
-    let zport = if a.zenoh_port == 0 {
-        std::net::TcpListener::bind("127.0.0.1:0")?
-            .local_addr()?
-            .port()
-    } else {
-        a.zenoh_port
+    let mut zport = demo_zenoh_port(a.zenoh_port)?;
+    // The temporary folder (only when no --db is given) goes when the demo ends, however it
+    // ends short of SIGKILL.
+    let tmp = match &a.db {
+        Some(_) => None,
+        None => Some(TempDir(tempfile_dir()?)),
     };
-    let endpoint = format!("tcp/127.0.0.1:{zport}");
-    let tmp = tempfile_dir()?;
-    let db = a.db.clone().unwrap_or_else(|| tmp.join("demo.sqlite"));
+    let db = match (&a.db, &tmp) {
+        (Some(d), _) => d.clone(),
+        (None, Some(t)) => t.0.join("demo.sqlite"),
+        (None, None) => unreachable!("a temporary folder when no --db"),
+    };
     let web = api::find_web_dir();
     if let Some(w) = &web {
         if let Some(note) = ensure_web_deps(w) {
             eprintln!("{note}");
         }
     }
-    let zc = station::zenoh_config(None, None, std::slice::from_ref(&endpoint), &[])?;
-    let running = start_station(zc, &db, addr, None, web).await?;
+    let zc = |port: u16| station::zenoh_config(None, None, &[format!("tcp/127.0.0.1:{port}")], &[]);
+    let running = match start_station(zc(zport)?, &db, addr, None, web.clone(), &a.ops).await {
+        Ok(r) => r,
+        // Another program took 7447 between the check and the bind: any free port will do.
+        Err(e) if a.zenoh_port.is_none() && zport == DEFAULT_ZENOH_PORT => {
+            tracing::warn!("zenoh on port {zport}: {e:#}; trying a free port");
+            zport = demo_zenoh_port(Some(0))?;
+            start_station(zc(zport)?, &db, addr, None, web, &a.ops).await?
+        }
+        Err(e) => return Err(e),
+    };
+    let endpoint = format!("tcp/127.0.0.1:{zport}");
     let agent = robot_agent_bin();
     let scenario = if a.scenario.is_file() {
         a.scenario.clone()
@@ -508,7 +578,25 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
             &mut children,
         )?;
     }
-    println!("terranav demo: open http://{addr}/  ({} simulated robots, zenoh {endpoint}; Ctrl-C to stop)", a.robots);
+    println!(
+        "terranav demo: open http://{addr}/  ({} simulated robots; Ctrl-C to stop)",
+        a.robots
+    );
+    println!("  zenoh    {endpoint}");
+    if zport == DEFAULT_ZENOH_PORT {
+        println!("  CLI      operator-station robots | goal --robot husky-1 --xy X,Y | stop --robot husky-1");
+    } else {
+        println!("  CLI      (port 7447 was taken) operator-station robots --connect {endpoint}");
+    }
+    println!(
+        "  database {}{}",
+        db.display(),
+        if tmp.is_some() {
+            " (temporary: removed when the demo ends; give --db FILE to keep it)"
+        } else {
+            ""
+        }
+    );
     let mut tick = tokio::time::interval(Duration::from_millis(500));
     let stop = stop_signal();
     tokio::pin!(stop);
@@ -528,7 +616,36 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
     }
     drop(children);
     running.stop().await;
+    drop(tmp);
     Ok(())
+}
+
+/// The Zenoh port `robots`, `goal` and `stop` connect to by default.
+pub const DEFAULT_ZENOH_PORT: u16 = 7447;
+
+/// The demo's Zenoh port: the one asked for, else 7447 when free (so the CLI commands find the
+/// robots without options), else any free one.
+fn demo_zenoh_port(asked: Option<u16>) -> anyhow::Result<u16> {
+    if let Some(p) = asked.filter(|p| *p != 0) {
+        return Ok(p);
+    }
+    if asked.is_none() && std::net::TcpListener::bind(("127.0.0.1", DEFAULT_ZENOH_PORT)).is_ok() {
+        return Ok(DEFAULT_ZENOH_PORT);
+    }
+    Ok(std::net::TcpListener::bind("127.0.0.1:0")?
+        .local_addr()?
+        .port())
+}
+
+/// A folder removed when dropped.
+struct TempDir(PathBuf);
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        if let Err(e) = std::fs::remove_dir_all(&self.0) {
+            eprintln!("could not remove {}: {e}", self.0.display());
+        }
+    }
 }
 
 fn tempfile_dir() -> anyhow::Result<PathBuf> {
@@ -574,7 +691,15 @@ async fn robots(a: ClientArgs) -> anyhow::Result<()> {
     // Give the session time to connect and learn the routes.
     tokio::time::sleep(Duration::from_millis(300)).await;
     let wait = Duration::from_secs_f64(a.wait_s.max(0.2));
-    for id in alive_robots(&s, wait).await? {
+    let alive = alive_robots(&s, wait).await?;
+    if alive.is_empty() {
+        eprintln!(
+            "no robots answered on {} within {:.1} s (a demo on another Zenoh port? `operator-station demo` prints it; give --connect tcp/127.0.0.1:PORT)",
+            a.z.connect.as_deref().unwrap_or(DEFAULT_LISTEN_ENDPOINT),
+            wait.as_secs_f64()
+        );
+    }
+    for id in alive {
         let rid = RobotId::new(id.clone())?;
         let mut session: Option<Session> = None;
         if let Ok(replies) = s
@@ -608,6 +733,38 @@ fn parse_pair(s: &str) -> anyhow::Result<(f64, f64)> {
     Ok((a, b))
 }
 
+/// A session that has seen `robot` online.
+async fn robot_session(c: &ClientArgs, robot: &str) -> anyhow::Result<zenoh::Session> {
+    let s = client_session(&c.z).await?;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let alive = alive_robots(&s, Duration::from_secs_f64(c.wait_s.max(0.2))).await?;
+    if !alive.iter().any(|r| r == robot) {
+        let _ = s.close().await;
+        bail!(
+            "robot {robot} is not online on {} (seen: {alive:?}; a demo on another Zenoh port? give --connect tcp/127.0.0.1:PORT)",
+            c.z.connect.as_deref().unwrap_or(DEFAULT_LISTEN_ENDPOINT)
+        );
+    }
+    Ok(s)
+}
+
+/// Sends one command and closes the session.
+async fn put_and_close(
+    s: zenoh::Session,
+    rid: &RobotId,
+    topic: Topic,
+    payload: Vec<u8>,
+) -> anyhow::Result<()> {
+    let r = s
+        .put(keys::key(rid, topic), payload)
+        .congestion_control(zenoh::qos::CongestionControl::Block)
+        .await
+        .map_err(|e| anyhow::anyhow!("zenoh put: {e}"));
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let _ = s.close().await;
+    r
+}
+
 async fn send_to_robot(
     c: &ClientArgs,
     robot: &str,
@@ -615,20 +772,27 @@ async fn send_to_robot(
     payload: Vec<u8>,
 ) -> anyhow::Result<()> {
     let rid = RobotId::new(robot)?;
-    let s = client_session(&c.z).await?;
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    let alive = alive_robots(&s, Duration::from_secs_f64(c.wait_s.max(0.2))).await?;
-    if !alive.iter().any(|r| r == robot) {
-        let _ = s.close().await;
-        bail!("robot {robot} is not online (seen: {alive:?})");
+    let s = robot_session(c, robot).await?;
+    put_and_close(s, &rid, topic, payload).await
+}
+
+/// The robot's position from one of its poses (it publishes them at 10 Hz), for the goal
+/// contract; empty when none comes within a second.
+async fn robot_context(s: &zenoh::Session, rid: &RobotId) -> RobotContext {
+    let Ok(sub) = s.declare_subscriber(keys::key(rid, Topic::Pose)).await else {
+        return RobotContext::default();
+    };
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(1);
+    while let Ok(Ok(sample)) = tokio::time::timeout_at(deadline, sub.recv_async()).await {
+        if let Ok(p) = msg::decode::<msg::Pose>(&sample.payload().to_bytes()) {
+            return RobotContext {
+                position_m: Some((p.x_m, p.y_m)),
+                lat_lon_deg: p.lat_lon_deg,
+                mapped: None,
+            };
+        }
     }
-    s.put(keys::key(&rid, topic), payload)
-        .congestion_control(zenoh::qos::CongestionControl::Block)
-        .await
-        .map_err(|e| anyhow::anyhow!("zenoh put: {e}"))?;
-    tokio::time::sleep(Duration::from_millis(200)).await;
-    let _ = s.close().await;
-    Ok(())
+    RobotContext::default()
 }
 
 async fn goal(a: GoalArgs) -> anyhow::Result<()> {
@@ -655,7 +819,15 @@ async fn goal(a: GoalArgs) -> anyhow::Result<()> {
         target,
         tolerance_m: 0.0,
     };
-    send_to_robot(&a.client, &a.robot, Topic::CmdGoal, msg::encode(&cmd)).await?;
+    let rid = RobotId::new(&a.robot)?;
+    let s = robot_session(&a.client, &a.robot).await?;
+    // The same contract the robot and the HTTP API apply: refused here, nothing is sent.
+    let ctx = robot_context(&s, &rid).await;
+    if let Err(r) = check_goal(&cmd, &CommandLimits::default(), &ctx) {
+        let _ = s.close().await;
+        bail!("goal refused: {} [{}]", r.message, r.code.as_str());
+    }
+    put_and_close(s, &rid, Topic::CmdGoal, msg::encode(&cmd)).await?;
     println!(
         "{}",
         serde_json::json!({"ok": true, "robot": a.robot, "sent": cmd})

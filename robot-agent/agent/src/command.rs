@@ -140,6 +140,15 @@ pub enum CommandKind {
     Resume,
     /// Cancel a repeat.
     Cancel,
+    /// The zones to obey from now on (replaces the set in force).
+    Zones {
+        /// The station's version of the set.
+        version: u64,
+        /// The session whose map frame the polygons are in.
+        session_id: String,
+        /// The zones, in the map frame.
+        zones: Vec<crate::zones::ZoneShape>,
+    },
 }
 
 impl CommandKind {
@@ -156,6 +165,7 @@ impl CommandKind {
             | CommandKind::Pause
             | CommandKind::Resume
             | CommandKind::Cancel => "route",
+            CommandKind::Zones { .. } => "zones",
         }
     }
 }

@@ -78,6 +78,8 @@ pub struct Driver {
     /// space ahead (low obstacles under the LiDAR's lowest beam).
     depth_safety: Option<(control::SafetyVerdict, f64)>,
     last_cmd: Cmd,
+    /// A slow zone's cap in force, m/s.
+    zone_cap_mps: Option<f64>,
 }
 
 impl Driver {
@@ -97,6 +99,7 @@ impl Driver {
             lasting_stop: None,
             depth_safety: None,
             last_cmd: Cmd::default(),
+            zone_cap_mps: None,
             cfg,
         }
     }
@@ -160,16 +163,28 @@ impl Driver {
         self.speed_limit_mps = v_mps.clamp(0.0, self.cfg.control.v_max_mps);
     }
 
-    /// The speed limit in force, m/s.
+    /// The operator's speed limit, m/s.
     pub fn speed_limit_mps(&self) -> f64 {
         self.speed_limit_mps
+    }
+
+    /// Caps the speed while a slow zone acts on the robot (None: no zone).
+    pub fn set_zone_cap(&mut self, cap_mps: Option<f64>) {
+        self.zone_cap_mps = cap_mps.filter(|c| c.is_finite() && *c >= 0.0);
+    }
+
+    /// The speed the driver allows now: the operator's limit, under a slow zone's cap, m/s.
+    pub fn limit_now_mps(&self) -> f64 {
+        self.zone_cap_mps
+            .map_or(self.speed_limit_mps, |c| c.min(self.speed_limit_mps))
     }
 
     /// The operator's drive, while the deadman is held and fresh; forward motion gated.
     pub fn teleop(&self, t_s: f64, drive: Option<&Teleop>, stop_ahead: bool) -> Cmd {
         match drive {
             Some(d) if d.deadman && t_s - d.t_s <= self.cfg.deadman_s => {
-                let v = d.v_mps.clamp(-self.speed_limit_mps, self.speed_limit_mps);
+                let limit = self.limit_now_mps();
+                let v = d.v_mps.clamp(-limit, limit);
                 Cmd {
                     v_mps: if stop_ahead && v > 0.0 { 0.0 } else { v },
                     omega_rps: d.omega_rps,
@@ -198,7 +213,7 @@ impl Driver {
         let c = follower.command(
             pose,
             path,
-            self.speed_limit_mps,
+            self.limit_now_mps(),
             self.safety.clearance_m,
             to_end,
         );
@@ -278,6 +293,9 @@ mod tests {
             deadman: true,
         };
         assert_eq!(d.teleop(10.1, Some(&t), false).v_mps, 0.3);
+        d.set_zone_cap(Some(0.2));
+        assert_eq!(d.teleop(10.1, Some(&t), false).v_mps, 0.2, "slow zone");
+        d.set_zone_cap(None);
         assert_eq!(d.teleop(10.4, Some(&t), false), Cmd::default(), "deadman");
         assert_eq!(d.teleop(10.1, Some(&t), true).v_mps, 0.0, "gated");
         assert_eq!(

@@ -67,7 +67,7 @@ fn run(name: &str, cfg: Config, full: bool, feed: Feed, sweeps: &[park_drive::Sw
                 Vector3::new(0.0, 0.0, 0.02),
                 Vector3::new(0.003, -0.002, 0.0),
             );
-            moved += m.follow_frame(&delta, 30.0, 10.0);
+            moved += m.follow_frame(&delta, 30.0);
         }
     }
     let tiles = common::grid::map_digest(&m.tiles());

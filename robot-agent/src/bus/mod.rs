@@ -22,6 +22,7 @@ use common::grid::TileIndex;
 use common::keys::{self, RobotId, Topic};
 use common::msg::{
     self, DriveCmd, GoalCmd, Path, Pose, Route, RouteCmd, Session, SpeedCmd, Status, StopCmd,
+    ZoneSet,
 };
 use tokio::sync::mpsc;
 use zenoh::qos::CongestionControl;
@@ -196,6 +197,8 @@ pub enum Command {
     Stop(StopCmd),
     /// Speed limit.
     Speed(SpeedCmd),
+    /// The zones to obey (from the station).
+    Zones(ZoneSet),
     /// A command that was refused (already counted by the bus); show it in the status.
     Refused(Refusal),
 }
@@ -250,6 +253,7 @@ pub fn validate(cmd: &Command, limits: &CommandLimits, ctx: &RobotContext) -> Re
         Command::Drive(d) => command::check_drive(d, limits),
         Command::Speed(s) => command::check_speed(s),
         Command::Route(r) => command::check_route(r),
+        Command::Zones(z) => command::check_zones(z),
         Command::Stop(_) | Command::Refused(_) => Ok(()),
     }
 }
@@ -264,7 +268,7 @@ pub fn parse_command(
     ctx: &RobotContext,
 ) -> Option<(Command, bool)> {
     let (rid, topic) = keys::parse(key).ok()?;
-    if &rid != robot || !topic.is_command() {
+    if &rid != robot || !(topic.is_command() || topic == Topic::Zones) {
         return None;
     }
     fn dec<T: serde::de::DeserializeOwned>(
@@ -282,6 +286,7 @@ pub fn parse_command(
         Topic::CmdDrive => dec("drive", payload, Command::Drive),
         Topic::CmdStop => dec("stop", payload, Command::Stop),
         Topic::CmdSpeed => dec("speed", payload, Command::Speed),
+        Topic::Zones => dec("zones", payload, Command::Zones),
         _ => return None,
     };
     // The bool says whether the failure was a decode error (counted separately from refusals).
@@ -322,17 +327,56 @@ impl RobotBus {
         });
         let mut tasks = Vec::new();
 
-        // Commands.
+        // Commands, and the station's zones (pushed, and asked for once at start: a robot that
+        // starts after the zones were drawn must obey them too).
         let sub = session
             .declare_subscriber(keys::robot_commands(&robot))
             .await
             .map_err(zerr)?;
-        {
-            let shared = shared.clone();
+        let zones_sub = session
+            .declare_subscriber(keys::key(&robot, Topic::Zones))
+            .await
+            .map_err(zerr)?;
+        let (sample_tx, mut sample_rx) = mpsc::unbounded_channel::<(String, Vec<u8>)>();
+        for sub in [sub, zones_sub] {
+            let tx = sample_tx.clone();
             tasks.push(tokio::spawn(async move {
                 while let Ok(sample) = sub.recv_async().await {
                     let key = sample.key_expr().as_str().to_string();
-                    let payload = sample.payload().to_bytes();
+                    if tx
+                        .send((key, sample.payload().to_bytes().to_vec()))
+                        .is_err()
+                    {
+                        break;
+                    }
+                }
+            }));
+        }
+        {
+            let tx = sample_tx;
+            let s2 = session.clone();
+            let key = keys::key(&robot, Topic::Zones);
+            tasks.push(tokio::spawn(async move {
+                // Give the connection to the station a moment; a station that is not there yet
+                // pushes the zones when it sees this robot's session.
+                tokio::time::sleep(Duration::from_millis(500)).await;
+                match s2.get(&key).timeout(Duration::from_secs(3)).await {
+                    Ok(replies) => {
+                        while let Ok(reply) = replies.recv_async().await {
+                            if let Ok(sample) = reply.result() {
+                                let k = sample.key_expr().as_str().to_string();
+                                let _ = tx.send((k, sample.payload().to_bytes().to_vec()));
+                            }
+                        }
+                    }
+                    Err(e) => tracing::debug!("zones query: {e}"),
+                }
+            }));
+        }
+        {
+            let shared = shared.clone();
+            tasks.push(tokio::spawn(async move {
+                while let Some((key, payload)) = sample_rx.recv().await {
                     let ctx = *shared.context.lock().unwrap_or_else(|p| p.into_inner());
                     let Some((cmd, decode_error)) =
                         parse_command(&shared.robot, &key, &payload, &shared.limits, &ctx)

@@ -50,6 +50,10 @@ pub struct MissionArgs {
     /// Start pose `X,Y,YAW_DEG` instead of the scenario's.
     #[arg(long, value_name = "X,Y,YAW_DEG", allow_hyphen_values = true)]
     pub start: Option<String>,
+    /// Live mode: write the simulator's true pose (`t_unix_ms x y yaw`, every 0.1 s) to this
+    /// file, for tests that judge where the robot really drove.
+    #[arg(long, value_name = "FILE")]
+    pub truth_out: Option<PathBuf>,
     /// Headless goal or teach and repeat: draw the robot's traversability map with the driven
     /// path (truth; for teach and repeat the return) and the goal into this PNG at the end.
     #[arg(long, value_name = "FILE")]
@@ -101,6 +105,7 @@ fn options(args: &MissionArgs, seed: u64) -> anyhow::Result<HeadlessOptions> {
         timeout_s: args.timeout,
         start,
         map_png: args.png.clone(),
+        truth_out: args.truth_out.clone(),
         ..HeadlessOptions::default()
     })
 }

@@ -139,14 +139,19 @@ pub fn odometry(o: &Odometry) -> Option<OdomSample> {
 /// An IMU reading into `base_link` (rotated by its frame's `tf_static` link when published; the
 /// lever arm is ignored, as the agent uses the accelerometer for gravity only).
 pub fn imu(m: &Imu, frames: &Frames) -> ImuSample {
-    let a = Vector3::from(m.linear_acceleration_mps2);
-    let a = match frames.body_from(&m.frame_id) {
-        Some(b) => b.rotation * a,
-        None => a,
+    let body = frames.body_from(&m.frame_id).map(|b| b.rotation);
+    let rotate = |v: [f64; 3]| {
+        let v = Vector3::from(v);
+        let v = body.map_or(v, |r| r * v);
+        [v.x, v.y, v.z]
     };
+    let w = m.angular_velocity_rps;
     ImuSample {
         t_s: m.stamp_s,
-        accel_mps2: [a.x, a.y, a.z],
+        accel_mps2: rotate(m.linear_acceleration_mps2),
+        // A driver without a gyroscope leaves the rates NaN (or zero, which is told apart only by
+        // its covariance; a zero rate de-skews nothing, so it is harmless).
+        gyro_rps: w.iter().all(|x| x.is_finite()).then(|| rotate(w)),
     }
 }
 

@@ -26,6 +26,11 @@ pub fn run_live(
     tracing::info!("robot {robot} live in scenario {scenario_name}");
     let wall0 = Instant::now();
     let mut outputs = Outputs::new(&rig.agent, &format!("sim:{scenario_name}"));
+    let mut truth = opts
+        .truth_out
+        .as_deref()
+        .map(crate::truth_log::TruthLog::create)
+        .transpose()?;
     while !stop.load(Ordering::Relaxed) {
         // Keep simulated time with the wall clock; if the CPU falls behind, time slows down
         // rather than the robot skipping sensor data.
@@ -40,6 +45,9 @@ pub fn run_live(
         }
         let ev = rig.step();
         let t = rig.t_s();
+        if let Some(log) = truth.as_mut() {
+            log.record(t, rig.agent.unix_ms(t), &rig.truth());
+        }
         let counters = LoopCounters {
             collisions: rig.collisions,
             ..LoopCounters::default()

@@ -11,6 +11,7 @@ pub mod live;
 pub mod map_eval;
 pub mod robot;
 pub mod ros2;
+pub mod stages;
 pub mod world;
 
 use agent::command::{Command, CommandKind, Direction, GoalTarget};
@@ -38,6 +39,10 @@ pub struct HeadlessOptions {
     /// Teach and repeat: draw the robot's map with the repeat's driven path (truth) into this
     /// PNG at the end.
     pub map_png: Option<std::path::PathBuf>,
+    /// Record the wall time of the agent's stages ([`Rig::stage_times`]).
+    pub time_stages: bool,
+    /// Live robot: write the simulator's truth here ([`crate::truth_log`]).
+    pub truth_out: Option<std::path::PathBuf>,
 }
 
 impl Default for HeadlessOptions {
@@ -48,6 +53,8 @@ impl Default for HeadlessOptions {
             start: None,
             stop_on_collision: true,
             map_png: None,
+            time_stages: false,
+            truth_out: None,
         }
     }
 }
@@ -147,6 +154,9 @@ pub struct Rig {
     trajectory: Vec<(f64, f64)>,
     /// How sweeps reach the map.
     pub scan_mode: ScanMode,
+    /// When set, the wall time of every stage of the agent is recorded here (the pipeline
+    /// bench); the agent itself never reads a clock.
+    pub stage_times: Option<stages::StageTimes>,
     /// When set, drives the plant instead of the agent's command (a scripted survey drive).
     pub drive_override: Option<Cmd>,
     /// Tiles the agent published so far, with their encoded bytes.
@@ -205,6 +215,7 @@ impl Rig {
         Ok(Self {
             publisher,
             scan_mode: ScanMode::Localised,
+            stage_times: None,
             drive_override: None,
             tiles_published: 0,
             tile_bytes: 0,
@@ -258,6 +269,7 @@ impl Rig {
         let drive = self.drive_override.unwrap_or(self.cmd);
         let out = self.sim.step(SIM_DT_S, drive.v_mps, drive.omega_rps);
         let mut ev = StepEvents::default();
+        let t_inputs = Instant::now();
         if let Some(o) = out.odom {
             self.agent.on_odom(o);
         }
@@ -267,10 +279,23 @@ impl Rig {
         for s in &out.gnss {
             self.agent.on_gnss(s);
         }
+        if let Some(times) = self.stage_times.as_mut() {
+            // GNSS fusion moves the frame, and the map follows: part of the robot's load.
+            times.add("odom_imu_gnss", t_inputs.elapsed().as_secs_f64() * 1e3);
+        }
         if let Some(scan) = &out.scan {
             let t0 = Instant::now();
             match self.scan_mode {
-                ScanMode::Localised => ev.slam_failed = self.agent.on_scan(scan).slam_failed,
+                ScanMode::Localised => {
+                    let rep = match self.stage_times.as_mut() {
+                        Some(times) => {
+                            times.begin_sweep();
+                            self.agent.on_scan_probed(scan, times)
+                        }
+                        None => self.agent.on_scan(scan),
+                    };
+                    ev.slam_failed = rep.slam_failed;
+                }
                 ScanMode::TruthPoses => {
                     let (points, origin, robot) = self.truth_sweep(scan);
                     if let Err(e) =
@@ -314,10 +339,14 @@ impl Rig {
                 self.loc.tilt_mean_deg +=
                     (tilt - self.loc.tilt_mean_deg) / f64::from(self.loc.scans);
                 if trace_enabled() {
+                    let h = self.agent.localiser().health();
                     eprintln!(
-                        "trace scan t {:.1} {} mapped {}",
+                        "trace scan t {:.1} {} slam inliers {:.2} iter {} degenerate {} mapped {}",
                         self.t_s(),
                         self.pose_error_text(),
+                        h.inlier_ratio,
+                        h.iterations,
+                        h.degenerate,
                         self.agent.scans_not_mapped()
                     );
                 }
@@ -341,9 +370,17 @@ impl Rig {
             self.next_control_s += CONTROL_DT_S;
             let t0 = Instant::now();
             if self.agent.plan_if_due(t) {
-                self.plan.add(t0.elapsed().as_secs_f64() * 1e3);
+                let ms = t0.elapsed().as_secs_f64() * 1e3;
+                self.plan.add(ms);
+                if let Some(times) = self.stage_times.as_mut() {
+                    times.add("planning", ms);
+                }
             }
+            let t1 = Instant::now();
             self.cmd = self.agent.control(t);
+            if let Some(times) = self.stage_times.as_mut() {
+                times.add("control", t1.elapsed().as_secs_f64() * 1e3);
+            }
             ev.control = true;
         }
         let p = self.sim.truth_pose().translation.vector;
@@ -493,6 +530,9 @@ pub fn run_goal_rig(
     opts: &HeadlessOptions,
 ) -> anyhow::Result<(MissionReport, Rig)> {
     let mut rig = Rig::new(scenario, cfg, opts, "sim")?;
+    if opts.time_stages {
+        rig.stage_times = Some(stages::StageTimes::default());
+    }
     let wall = Instant::now();
     // Let the first scans arrive so the map frame is anchored before the goal is converted.
     while rig.agent.scans() < 3 && rig.t_s() < 5.0 {

@@ -359,13 +359,12 @@ pub fn serve_world(
             put(&pubs.odom, cdr::encode_odometry(&msg));
         }
         if !silenced(SilencedStream::Imu, t_s) {
-            let omega = simu.truth_velocity().1;
             for s in &out.imu {
                 let msg = Imu {
                     stamp_s: epoch_s + s.t_s,
                     frame_id: "base_link".into(),
                     orientation: None,
-                    angular_velocity_rps: [0.0, 0.0, omega],
+                    angular_velocity_rps: s.gyro_rps.unwrap_or([f64::NAN; 3]),
                     linear_acceleration_mps2: s.accel_mps2,
                 };
                 put(&pubs.imu, cdr::encode_imu(&msg));

@@ -40,11 +40,10 @@ pub struct GnssConfig {
     /// Nor one whose pitch differs from the fresh dual-antenna pitch by more than this (1 deg
     /// of pitch lifts ground 7 m ahead by 12 cm: a step against what the map holds), degrees.
     pub pose_trust_pitch_deg: f64,
-    /// Stored map heights within this distance of the robot follow each GNSS correction of the
-    /// pose's height and tilt (they were seen under the same SLAM drift), metres...
+    /// Stored map heights within this distance of the robot follow each correction of the
+    /// frame's height and tilt (the last quarter tapers), metres: the map's reach for one
+    /// correction, a bound on its cost.
     pub map_follow_radius_m: f64,
-    /// ...if they changed within this long, seconds.
-    pub map_follow_age_s: f64,
     /// Tilt of the SLAM frame estimated from the GNSS track (`[gnss.tilt]`).
     pub tilt: super::tilt::TiltConfig,
 }
@@ -63,8 +62,7 @@ impl Default for GnssConfig {
             pose_trust_residual_m: 0.1,
             pose_jump_max_m: 0.15,
             pose_trust_pitch_deg: 1.0,
-            map_follow_radius_m: 30.0,
-            map_follow_age_s: 20.0,
+            map_follow_radius_m: 300.0,
             tilt: Default::default(),
         }
     }

@@ -224,6 +224,10 @@ impl Localiser {
     /// the first sweep: the body frame, which the anchor then turns into the map frame). `Err`:
     /// refused (non-finite or out of order), counted.
     pub fn on_imu(&mut self, s: &ImuSample) -> Result<(), String> {
+        if let Some(w) = s.gyro_rps {
+            // The sweep's rotation for de-skewing (pitch and roll that odometry cannot see).
+            self.slam.push_gyro(s.t_s, w);
+        }
         if !self.gravity_enabled {
             return Ok(());
         }

@@ -1,7 +1,7 @@
-//! Evidence (methods.md §4 steps 1-3 and 6a, with the project's additions): a sweep's points
-//! through the height and isolated-point filters, binned under each cell's ceiling `h_max2`,
-//! split into ground and possible stray points, and merged into the cells' two evidence epochs;
-//! the robot's footprint as evidence of drivable ground.
+//! Evidence (docs/algorithms.md §4.1-4.3 and §4.5: the source's steps 1-3 and 6, with the project's
+//! additions): a sweep's points through the height and isolated-point filters, binned under each
+//! cell's ceiling `h_max2`, split into ground and possible stray points, and merged into the cells'
+//! two evidence epochs; the robot's footprint as evidence of drivable ground.
 
 use super::cell_data::Moments;
 use super::fast_hash::FastMap;

@@ -1,7 +1,7 @@
-//! Inflation and costs (methods.md §4 step 5): each output cell's state and planner cost from
-//! its class and the nearest inflation source (an obstacle, and by default an undecided cell).
-//! Within `obstacle_distance_m` a traversable cell is inflated (cost 254); beyond it the cost
-//! decays from `cost_max` with `cost_decay_m` and ends at `cost_distance_m`.
+//! Inflation and costs (docs/algorithms.md §4.10, the source's step 5): each output cell's state
+//! and planner cost from its class and the nearest inflation source (an obstacle, and by default an
+//! undecided cell). Within `obstacle_distance_m` a traversable cell is inflated (cost 254); beyond
+//! it the cost decays from `cost_max` with `cost_decay_m` and ends at `cost_distance_m`.
 
 use super::window::Window;
 use super::Mapper;

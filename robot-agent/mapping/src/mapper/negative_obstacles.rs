@@ -1,6 +1,7 @@
-//! Negative obstacles (methods.md §4 step 6b): unknown cells in the sensor's reach whose
-//! neighbour towards the robot is observed ground and beyond which the surface is missing or
-//! much lower (a platform edge, a hole, a missing manhole cover), and the lip beside them.
+//! Negative obstacles (docs/algorithms.md §4.9, the source's step 6): unknown cells in the sensor's
+//! reach whose neighbour towards the robot is observed ground and beyond which the surface is
+//! missing or much lower (a platform edge, a hole, a missing manhole cover), and the lip beside
+//! them.
 
 use super::cell_data::CellData;
 use super::{norm2, Mapper, RobotPose};

@@ -1,8 +1,8 @@
-//! Classification (methods.md §4 step 4): which cells to judge after an update (the dirty ones
-//! dilated by the rule neighbourhood, and those that got evidence while out of reach), the
-//! verdict of [`crate::classify::Rules`] for each within the processing distance, what the
-//! robot's own footprint and the missing headroom change about it, and the order of the
-//! remaining stages (far rules, negative obstacles, inflation).
+//! Classification (docs/algorithms.md §4.6-4.7 and §4.11, the source's step 4): which cells to
+//! judge after an update (the dirty ones dilated by the rule neighbourhood, and those that got
+//! evidence while out of reach), the verdict of [`crate::classify::Rules`] for each within the
+//! processing distance, what the robot's own footprint and the missing headroom change about it,
+//! and the order of the remaining stages (far rules, negative obstacles, inflation).
 
 use super::cell_data::CellData;
 use super::fast_hash::FastSet;
