@@ -760,7 +760,8 @@ async fn cmd_goal(
     };
     // The robot checks the same contract; refusing here already tells the operator at once
     // (a swapped lat/lon would otherwise leave as "sent" and come back as a refusal later).
-    check_goal(&cmd, &CommandLimits::default(), &goal_context(&st, &robot)).map_err(ApiError::from)?;
+    check_goal(&cmd, &CommandLimits::default(), &goal_context(&st, &robot))
+        .map_err(ApiError::from)?;
     put(&st, &id, Topic::CmdGoal, msg::encode(&cmd)).await?;
     let sent = serde_json::to_value(&cmd).map_err(internal)?;
     st.inner.store(StoreOp::Goal {

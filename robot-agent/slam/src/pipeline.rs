@@ -439,7 +439,13 @@ mod tests {
         cfg.sensor.lidar_rpy_rad = [0.0, 0.0, std::f64::consts::FRAC_PI_2];
         let mut s = Slam::new(cfg);
         assert!(s.gyro_rate_lidar(0.0, 0.1).is_none());
-        for (t, wx) in [(0.98, 9.0), (1.02, 0.1), (1.06, 0.3), (1.10, 0.2), (1.14, 9.0)] {
+        for (t, wx) in [
+            (0.98, 9.0),
+            (1.02, 0.1),
+            (1.06, 0.3),
+            (1.10, 0.2),
+            (1.14, 9.0),
+        ] {
             s.push_gyro(t, [wx, 0.0, 0.0]);
         }
         s.push_gyro(1.12, [5.0, 0.0, 0.0]); // out of order: ignored

@@ -1,7 +1,8 @@
 //! `robot-agent bench pipeline`: the whole agent per VLP-16 sweep on a goal mission in the
 //! built-in world (localisation, map update, safety, planning, control, and their total per
-//! sensor period), median and p99 against the sensor period. The agent runs on one thread;
-//! the simulator's own time is not counted.
+//! sensor period), median and p99 against the sensor period. The agent runs on one thread and
+//! its CPU time is what is measured (other programs on the machine do not inflate it); the
+//! simulator's own time is not counted.
 
 use crate::run::{self, HeadlessOptions};
 use anyhow::Context;

@@ -36,6 +36,14 @@ pub struct RunArgs {
     /// LiDAR source (`ros2:TOPIC`, `vlp16-udp:PORT`); overrides `[io] lidar`.
     #[arg(long, value_name = "SPEC")]
     pub lidar: Option<String>,
+    /// Message type of a `ros2:` LiDAR topic: `PointCloud2` (sensor_msgs) or `VelodyneScan`
+    /// (velodyne_msgs: a VLP-16 driver's raw packets, e.g. `--lidar ros2:velodyne_packets`).
+    #[arg(long, value_name = "TYPE")]
+    pub lidar_msg: Option<String>,
+    /// Run without a LiDAR, to bring up and watch the other sensors (GNSS, odometry, IMU):
+    /// nothing is mapped, and the base is never driven (nothing vouches for the space ahead).
+    #[arg(long)]
+    pub no_lidar: bool,
     /// Depth-camera source (`ros2:TOPIC`, or "" for none).
     #[arg(long, value_name = "SPEC")]
     pub depth: Option<String>,
@@ -55,6 +63,9 @@ pub struct RunArgs {
     /// Base command sink (`ros2:TOPIC`, or "" to never drive).
     #[arg(long, value_name = "SPEC")]
     pub cmd_vel: Option<String>,
+    /// Print every GNSS fix the agent takes as a JSON line on stdout (`{"fix": {...}}`).
+    #[arg(long)]
+    pub print_fixes: bool,
     /// ROS 2 key form: `bridge` (zenoh-bridge-ros2dds) or `rmw` (rmw_zenoh).
     #[arg(long, value_name = "FORM")]
     pub ros2_keys: Option<String>,
@@ -90,6 +101,17 @@ fn spec(name: &str, cli: &Option<String>, file: &str) -> anyhow::Result<Option<S
         );
     }
     Ok(Some(spec))
+}
+
+/// What a `ros2:` LiDAR topic carries, from `--lidar-msg` / `[io] lidar_msg`.
+fn lidar_msg(s: &str) -> anyhow::Result<Ros2Input> {
+    match s.trim() {
+        "PointCloud2" | "sensor_msgs/msg/PointCloud2" => Ok(Ros2Input::Lidar),
+        "VelodyneScan" | "velodyne_msgs/msg/VelodyneScan" => Ok(Ros2Input::VelodynePackets),
+        other => anyhow::bail!(
+            "--lidar-msg {other:?}: PointCloud2 (sensor_msgs) or VelodyneScan (velodyne_msgs)"
+        ),
+    }
 }
 
 fn parse_datum(s: &str) -> anyhow::Result<Datum> {
@@ -185,17 +207,30 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         bus.zenoh = station.clone();
     }
 
-    let lidar = spec("lidar", &args.lidar, &io.lidar)?;
+    let mut lidar = spec("lidar", &args.lidar, &io.lidar)?;
     let depth = spec("depth", &args.depth, &io.depth)?;
     let odom = spec("odom", &args.odom, &io.odom)?;
     let imu = spec("imu", &args.imu, &io.imu)?;
     let gnss = spec("gnss", &args.gnss, &io.gnss)?;
     let heading = spec("heading", &args.heading, &io.heading)?;
-    let cmd_vel = spec("cmd-vel", &args.cmd_vel, &io.cmd_vel)?;
-    anyhow::ensure!(
-        lidar.is_some(),
-        "no LiDAR source: give --lidar ros2:TOPIC or vlp16-udp:PORT (or set [io] lidar)"
-    );
+    let mut cmd_vel = spec("cmd-vel", &args.cmd_vel, &io.cmd_vel)?;
+    let lidar_input = lidar_msg(args.lidar_msg.as_deref().unwrap_or(&io.lidar_msg))?;
+    if args.no_lidar {
+        anyhow::ensure!(
+            args.lidar.as_deref().is_none_or(|s| s.trim().is_empty()),
+            "--no-lidar and --lidar: choose one"
+        );
+        if args.cmd_vel.is_some() {
+            tracing::warn!("--no-lidar: the base is never driven");
+        }
+        (lidar, cmd_vel) = (None, None);
+    } else {
+        anyhow::ensure!(
+            lidar.is_some(),
+            "no LiDAR source: give --lidar ros2:TOPIC or vlp16-udp:PORT (or set [io] lidar), \
+             or --no-lidar to bring up the other sensors without one"
+        );
+    }
 
     let uses_ros2 = [&lidar, &depth, &odom, &imu, &gnss, &heading, &cmd_vel]
         .iter()
@@ -249,7 +284,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     };
     if let Some(s) = &lidar {
         sources.push(match s {
-            SourceSpec::Ros2 { topic } => ros(Ros2Input::Lidar, topic, lidar_mount)?,
+            SourceSpec::Ros2 { topic } => ros(lidar_input, topic, lidar_mount)?,
             SourceSpec::Vlp16Udp { port } => {
                 crate::run::robot::vlp16_udp(*port, Default::default())
             }
@@ -323,6 +358,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             sources,
             base,
             source_name: names.join(" "),
+            print_fixes: args.print_fixes,
         },
         stop,
     )?;

@@ -159,14 +159,16 @@ pub fn imu(m: &Imu, frames: &Frames) -> ImuSample {
 /// `NavSatStatus` has one status for every ground-augmented fix, and RTK fixed is centimetres.
 pub const RTK_FIXED_MAX_SIGMA_M: f64 = 0.1;
 
-/// A `NavSatFix` (or a gpsd report) into GGA terms. Quality: no fix 0, fix 1, SBAS 2, GBAS 4
-/// (RTK fixed) when the covariance is unknown or within [`RTK_FIXED_MAX_SIGMA_M`], else 5.
+/// A `NavSatFix` (or a gpsd report) into GGA terms. Quality: the receiver's own when the source
+/// gave it (gpsd), else no fix 0, fix 1, SBAS 2, GBAS 4 (RTK fixed) when the covariance is
+/// unknown or within [`RTK_FIXED_MAX_SIGMA_M`], else 5.
 pub fn fix(f: &NavFix) -> GnssFixSample {
-    let quality = match f.status {
-        FixStatus::NoFix => 0,
-        FixStatus::Fix => 1,
-        FixStatus::Sbas => 2,
-        FixStatus::Gbas => {
+    let quality = match (f.status, f.gga_quality) {
+        (FixStatus::NoFix, _) => 0,
+        (_, Some(q)) if q > 0 => q,
+        (FixStatus::Fix, _) => 1,
+        (FixStatus::Sbas, _) => 2,
+        (FixStatus::Gbas, _) => {
             let sigma = f
                 .covariance_m2
                 .map(|c| ((c[0] + c[4]) / 2.0).max(0.0).sqrt());
@@ -295,6 +297,7 @@ mod tests {
                 alt_m: 500.0,
                 status,
                 covariance_m2: cov.map(|c| [c, 0.0, 0.0, 0.0, c, 0.0, 0.0, 0.0, c]),
+                gga_quality: None,
             })
             .quality
         };
@@ -303,5 +306,16 @@ mod tests {
         assert_eq!(f(FixStatus::Gbas, Some(0.09)), 5);
         assert_eq!(f(FixStatus::Fix, Some(4.0)), 1);
         assert_eq!(f(FixStatus::NoFix, None), 0);
+        // gpsd says RTK float outright, without a covariance.
+        let float = NavFix {
+            stamp_s: 1.0,
+            lat_deg: 48.0,
+            lon_deg: 11.0,
+            alt_m: 500.0,
+            status: FixStatus::Gbas,
+            covariance_m2: None,
+            gga_quality: Some(5),
+        };
+        assert_eq!(fix(&float).quality, 5);
     }
 }

@@ -4,6 +4,7 @@
 //! The simulator is the robot here: the agent only sees its sensor outputs (scans, odometry,
 //! NMEA), never its truth; the truth is used only to score the outcome.
 
+pub mod bag_play;
 pub mod convert;
 pub mod gnss_sources;
 pub mod io_config;
@@ -39,7 +40,7 @@ pub struct HeadlessOptions {
     /// Teach and repeat: draw the robot's map with the repeat's driven path (truth) into this
     /// PNG at the end.
     pub map_png: Option<std::path::PathBuf>,
-    /// Record the wall time of the agent's stages ([`Rig::stage_times`]).
+    /// Record the CPU time (this thread) of the agent's stages ([`Rig::stage_times`]).
     pub time_stages: bool,
     /// Live robot: write the simulator's truth here ([`crate::truth_log`]).
     pub truth_out: Option<std::path::PathBuf>,
@@ -269,7 +270,7 @@ impl Rig {
         let drive = self.drive_override.unwrap_or(self.cmd);
         let out = self.sim.step(SIM_DT_S, drive.v_mps, drive.omega_rps);
         let mut ev = StepEvents::default();
-        let t_inputs = Instant::now();
+        let t_inputs = stages::thread_cpu_ms();
         if let Some(o) = out.odom {
             self.agent.on_odom(o);
         }
@@ -281,7 +282,7 @@ impl Rig {
         }
         if let Some(times) = self.stage_times.as_mut() {
             // GNSS fusion moves the frame, and the map follows: part of the robot's load.
-            times.add("odom_imu_gnss", t_inputs.elapsed().as_secs_f64() * 1e3);
+            times.add("odom_imu_gnss", stages::thread_cpu_ms() - t_inputs);
         }
         if let Some(scan) = &out.scan {
             let t0 = Instant::now();
@@ -369,17 +370,17 @@ impl Rig {
         if t + 1e-9 >= self.next_control_s {
             self.next_control_s += CONTROL_DT_S;
             let t0 = Instant::now();
+            let c0 = stages::thread_cpu_ms();
             if self.agent.plan_if_due(t) {
-                let ms = t0.elapsed().as_secs_f64() * 1e3;
-                self.plan.add(ms);
+                self.plan.add(t0.elapsed().as_secs_f64() * 1e3);
                 if let Some(times) = self.stage_times.as_mut() {
-                    times.add("planning", ms);
+                    times.add("planning", stages::thread_cpu_ms() - c0);
                 }
             }
-            let t1 = Instant::now();
+            let c1 = stages::thread_cpu_ms();
             self.cmd = self.agent.control(t);
             if let Some(times) = self.stage_times.as_mut() {
-                times.add("control", t1.elapsed().as_secs_f64() * 1e3);
+                times.add("control", stages::thread_cpu_ms() - c1);
             }
             ev.control = true;
         }

@@ -5,6 +5,7 @@
 //! On stop (SIGINT/SIGTERM) the base gets a zero command before the bus closes.
 
 use crate::bus::{BusConfig, BusHandle};
+use crate::runtime::faults::FaultLog;
 use crate::runtime::outputs::{apply_command, LoopCounters, Outputs};
 use crate::runtime::stamps::Topic;
 use crate::runtime::{Input, Runtime, RuntimeLimits};
@@ -36,6 +37,10 @@ pub trait Base: Send {
     fn stop(&mut self) -> anyhow::Result<()> {
         self.drive(Cmd::default())
     }
+    /// What the base did, for the run's summary (`null`: nothing to say).
+    fn report(&self) -> serde_json::Value {
+        serde_json::Value::Null
+    }
 }
 
 /// A base that only logs (a robot driven by hand, or mapping only).
@@ -65,6 +70,8 @@ pub struct RobotRun {
     pub base: Box<dyn Base>,
     /// The session record's `source` (`ros2`, `vlp16-udp+nmea-tcp`, ...).
     pub source_name: String,
+    /// Print every GNSS fix the agent takes as a JSON line on stdout (`{"fix": {...}}`).
+    pub print_fixes: bool,
 }
 
 fn wall_unix_ms() -> u64 {
@@ -87,13 +94,17 @@ pub fn run_robot(mut r: RobotRun, stop: Arc<AtomicBool>) -> anyhow::Result<serde
     r.base.drive(Cmd::default())?;
     tracing::info!("robot {} waiting for its first sensor message", r.robot);
     let Some((first, rt)) = first_input(&rx, &stop, &r)? else {
+        // The drivers finish before their I/O runtimes go (they wait on its timers).
+        for t in threads {
+            let _ = t.join();
+        }
         return close(bus, r.base.as_mut(), None);
     };
     let mut rt = rt;
     let mut outputs = Outputs::new(rt.agent(), &r.source_name);
     let mut clock = LoopClock::default();
     let mut pending = Some(first);
-    let mut last_faults: Vec<String> = Vec::new();
+    let mut fault_log = FaultLog::default();
     while !stop.load(Ordering::Relaxed) {
         let event = match pending.take() {
             Some(e) => Some(e),
@@ -116,6 +127,9 @@ pub fn run_robot(mut r: RobotRun, stop: Arc<AtomicBool>) -> anyhow::Result<serde
                             clock.heard(t);
                         }
                     }
+                    if let Some(f) = rt.take_new_fix().filter(|_| r.print_fixes) {
+                        print_line(&serde_json::json!({ "fix": f }));
+                    }
                 }
                 SourceEvent::Undecodable(topic, why) => {
                     rt.count_undecodable(topic);
@@ -133,13 +147,15 @@ pub fn run_robot(mut r: RobotRun, stop: Arc<AtomicBool>) -> anyhow::Result<serde
                 tracing::warn!("base command: {e:#}");
             }
         }
-        let faults: Vec<String> = rt.faults(now).iter().map(ToString::to_string).collect();
-        if faults != last_faults {
-            for f in faults.iter().filter(|f| !last_faults.contains(f)) {
-                tracing::warn!("{f}");
-            }
-            last_faults = faults.clone();
+        let in_force = rt.faults(now);
+        let (began, ended) = fault_log.note(&in_force);
+        for f in in_force.iter().filter(|f| began.contains(&f.topic)) {
+            tracing::warn!("{f}");
         }
+        for topic in ended {
+            tracing::info!("{topic} is back");
+        }
+        let faults: Vec<String> = in_force.iter().map(ToString::to_string).collect();
         let counters = LoopCounters {
             collisions: 0,
             bad_inputs: rt.bad_inputs(),
@@ -150,7 +166,15 @@ pub fn run_robot(mut r: RobotRun, stop: Arc<AtomicBool>) -> anyhow::Result<serde
     for t in threads {
         let _ = t.join();
     }
-    close(bus, r.base.as_mut(), Some(&rt))
+    close(bus, r.base.as_mut(), Some((&rt, &fault_log)))
+}
+
+/// One JSON line on stdout, flushed (a reader may act on it at once).
+fn print_line(v: &serde_json::Value) {
+    use std::io::Write;
+    let mut o = std::io::stdout().lock();
+    let _ = writeln!(o, "{v}");
+    let _ = o.flush();
 }
 
 /// Waits for the first decodable message to start the session clock.
@@ -189,22 +213,35 @@ fn first_input(
     Ok(None)
 }
 
+/// The summary: what the agent took in and made of it, the runtime's counts, the sensor faults
+/// that came and went, and what the base did.
 fn close(
     bus: BusHandle,
     base: &mut dyn Base,
-    rt: Option<&Runtime>,
+    rt: Option<(&Runtime, &FaultLog)>,
 ) -> anyhow::Result<serde_json::Value> {
     if let Err(e) = base.stop() {
         tracing::warn!("stopping the base: {e:#}");
     }
     bus.close();
     Ok(match rt {
-        Some(rt) => serde_json::json!({
-            "scans": rt.agent().scans(),
-            "depth_frames": rt.agent().depth_frames(),
-            "counts": rt.counts(),
-        }),
-        None => serde_json::json!({ "scans": 0 }),
+        Some((rt, faults)) => {
+            let a = rt.agent();
+            let tiles = a.all_tiles();
+            serde_json::json!({
+                "scans": a.scans(),
+                "depth_frames": a.depth_frames(),
+                "map": {
+                    "scans_mapped": u64::from(a.scans()).saturating_sub(a.scans_not_mapped()),
+                    "tiles": tiles.len(),
+                    "known_cells": tiles.iter().map(|t| t.known_cells()).sum::<usize>(),
+                },
+                "counts": rt.counts(),
+                "faults": faults,
+                "base": base.report(),
+            })
+        }
+        None => serde_json::json!({ "scans": 0, "base": base.report() }),
     })
 }
 

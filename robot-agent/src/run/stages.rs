@@ -1,17 +1,20 @@
-//! Wall time of the agent's stages, sweep by sweep (`robot-agent bench pipeline`). The agent
+//! CPU time of the agent's stages, sweep by sweep (`robot-agent bench pipeline`). The agent
 //! marks where its stages end ([`agent::Probe`]); this reads the clock at each mark, adds the
 //! planning and control the loop runs between sweeps, and closes one sensor period's total at
 //! each new sweep, so the total is what the robot's computer spends per LiDAR period.
+//!
+//! The clock is the thread's CPU time, not the wall: the agent's algorithms run on the calling
+//! thread only, so this is what one core spends, and other programs on the machine (a build, a
+//! browser) do not inflate it the way they inflate wall time.
 
 use agent::{Probe, Stage};
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::time::Instant;
 
 /// Samples per stage, milliseconds.
 #[derive(Debug)]
 pub struct StageTimes {
-    mark: Instant,
+    mark: f64,
     samples: BTreeMap<&'static str, Vec<f64>>,
     period_ms: f64,
     periods: usize,
@@ -20,12 +23,20 @@ pub struct StageTimes {
 impl Default for StageTimes {
     fn default() -> Self {
         Self {
-            mark: Instant::now(),
+            mark: thread_cpu_ms(),
             samples: BTreeMap::new(),
             period_ms: 0.0,
             periods: 0,
         }
     }
+}
+
+/// CPU time the calling thread has used, milliseconds (0 where the clock is missing).
+pub fn thread_cpu_ms() -> f64 {
+    use nix::time::{clock_gettime, ClockId};
+    clock_gettime(ClockId::CLOCK_THREAD_CPUTIME_ID)
+        .map(|t| t.tv_sec() as f64 * 1e3 + t.tv_nsec() as f64 * 1e-6)
+        .unwrap_or(0.0)
 }
 
 fn stage_name(s: Stage) -> &'static str {
@@ -38,8 +49,8 @@ fn stage_name(s: Stage) -> &'static str {
 
 impl Probe for StageTimes {
     fn mark(&mut self, stage: Stage) {
-        let now = Instant::now();
-        let ms = (now - self.mark).as_secs_f64() * 1e3;
+        let now = thread_cpu_ms();
+        let ms = now - self.mark;
         self.mark = now;
         self.add(stage_name(stage), ms);
     }
@@ -54,7 +65,7 @@ impl StageTimes {
         }
         self.periods += 1;
         self.period_ms = 0.0;
-        self.mark = Instant::now();
+        self.mark = thread_cpu_ms();
     }
 
     /// `stage` took `ms` (planning and control, timed by the loop).

@@ -194,6 +194,7 @@ fn gnss_messages(text: &str, stamp_s: f64) -> (Option<NavFix>, Option<Heading>) 
                     alt_m: g.alt_hae_m().unwrap_or(f64::NAN),
                     status,
                     covariance_m2: Some([var, 0.0, 0.0, 0.0, var, 0.0, 0.0, 0.0, 4.0 * var]),
+                    gga_quality: None,
                 }),
                 None,
             )

@@ -464,6 +464,12 @@ impl Localiser {
         self.gnss.fix_kind(t_s)
     }
 
+    /// Whether a fresh RTK fixed fix and a heading at `t_s` would anchor the map frame in ENU
+    /// at the first sweep (so a runtime can hold the first sweep until they come).
+    pub fn can_anchor(&self, t_s: f64) -> bool {
+        self.gnss.can_anchor(t_s)
+    }
+
     /// True when the map was anchored by GNSS and there is no fresh fix: the robot carries on
     /// with SLAM and odometry alone.
     pub fn gnss_lost(&self, t_s: f64) -> bool {
