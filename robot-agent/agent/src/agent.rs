@@ -185,7 +185,7 @@ impl Agent {
         if let Some(shift) = update.shift {
             self.terrain.follow_frame(&shift);
         }
-        // Re-evaluate a GNSS goal with each new fix (methods.md §5).
+        // Re-evaluate a GNSS goal with each new fix (docs/algorithms.md §5.2).
         if let (Some(fix), Some(pose)) = (self.localiser.fix(t_s), self.localiser.pose_now()) {
             let freeze = self.localiser.gnss_config().goal_freeze_distance_m;
             if let Some(goal) = self.mission.nav_mut().goal_mut() {

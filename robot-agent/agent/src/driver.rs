@@ -1,13 +1,14 @@
 //! The driver: turns a path or an operator's drive into a velocity command, under the safety
 //! gate.
 //!
-//! Two pure-pursuit followers (methods.md §6): one for planned paths, and the same controller
-//! tuned for taught routes (shorter look-ahead, earlier turn in place). Every command passes the
-//! gate: while the last sweep puts something in the stop zone, or the last sweep is older than
-//! `safety_scan_timeout_s` (a stale sweep cannot vouch for the space ahead), forward motion is
-//! zeroed; turning in place stays allowed unless something stands where the body's corners
-//! would sweep. A stop that holds for `safety_stop_block_s` is remembered with where it stands,
-//! so the planner can treat it as a blockage ([`crate::terrain::layers::stamp_blocked_disc`]).
+//! Two pure-pursuit followers (docs/algorithms.md §6): one for planned paths, and the same
+//! controller tuned for taught routes (shorter look-ahead, earlier turn in place). Every command
+//! passes the gate: while the last sweep puts something in the stop zone, or the last sweep is
+//! older than `safety_scan_timeout_s` (a stale sweep cannot vouch for the space ahead), forward
+//! motion is zeroed; turning in place stays allowed unless something stands where the body's
+//! corners would sweep. A stop that holds for `safety_stop_block_s` is remembered with where it
+//! stands, so the planner can treat it as a blockage
+//! ([`crate::terrain::layers::stamp_blocked_disc`]).
 
 use crate::localiser::PoseMap;
 use common::geom::Pose2;

@@ -262,7 +262,7 @@ pub fn deliver(agent: &mut Agent, input: &Input) -> Delivered {
     d
 }
 
-/// Control period, seconds (20 Hz, methods.md §6).
+/// Control period, seconds (20 Hz, docs/algorithms.md §6).
 pub const CONTROL_DT_S: f64 = 0.05;
 
 /// Stamps above this are Unix times (2001 on); below, a session or simulator clock.

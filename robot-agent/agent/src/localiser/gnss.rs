@@ -1,5 +1,5 @@
 //! GNSS state: the latest fix and heading from NMEA sentences, loss detection, whether the map
-//! frame can be anchored, and GNSS goals through the datum (methods.md §2, §5).
+//! frame can be anchored, and GNSS goals through the datum (docs/algorithms.md §2, §5.2).
 
 use super::FixKind;
 use common::geo::{parse_sentence, LocalFrame, NmeaError, Sentence};
@@ -276,9 +276,10 @@ pub enum GnssGoalError {
     OutOfRange(f64, f64),
 }
 
-/// A goal given as lat/lon, tracked in the map frame (methods.md §5): the goal is placed relative
-/// to the robot's current fix (`goal = robot + d`, d from the exact ENU difference), re-evaluated
-/// at each new fix so SLAM drift does not bias it, except once within `goal_freeze_distance_m`.
+/// A goal given as lat/lon, tracked in the map frame (docs/algorithms.md §5.2): the goal is placed
+/// relative to the robot's current fix (`goal = robot + d`, d from the exact ENU difference),
+/// re-evaluated at each new fix so SLAM drift does not bias it, except once within
+/// `goal_freeze_distance_m`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct GnssGoal {
     /// Target.

@@ -1,4 +1,4 @@
-//! The go-to-goal mission: goal in, path out, state reported (methods.md §5).
+//! The go-to-goal mission: goal in, path out, state reported (docs/algorithms.md §5).
 //!
 //! The navigator owns the goal, the mission state and the path. It plans when asked (the agent's
 //! loop calls [`Navigator::wants_replan`] at its own rate and times [`Navigator::replan`]); it never

@@ -127,9 +127,9 @@ impl TerrainMap {
         self.cleared_cells
     }
 
-    /// The map frame moved (a GNSS or gravity correction): the heights seen recently near the
-    /// robot follow it, so the correction itself draws no false steps between old and new
-    /// sweeps; older cells keep the frame they were seen in.
+    /// The map frame moved (a GNSS or gravity correction): the stored heights within
+    /// `map_follow_radius_m` follow it (the last quarter tapering off), so the correction itself
+    /// draws no false steps between old and new sweeps (docs/algorithms.md §4.13).
     pub fn follow_frame(&mut self, shift: &FrameShift) {
         self.mapper.follow_frame(shift, self.map_follow_radius_m);
     }
