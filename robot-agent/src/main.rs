@@ -35,6 +35,8 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
+    // Before anything slow: a parent that dies while the sources open must still be noticed.
+    robot_agent::cli::mission::note_parent();
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
         .with_env_filter(

@@ -201,19 +201,30 @@ pub fn run_live(
     run::live::run_live(scenario, scenario_name, cfg, robot, bus, &opts, stop)
 }
 
+/// The parent process as it was when this process started ([`note_parent`]).
+static PARENT: std::sync::OnceLock<u32> = std::sync::OnceLock::new();
+
+/// Notes this process's parent; call first thing in `main`, so that [`watch_parent`], installed
+/// only once the sources are open, still sees a parent that died during the start.
+pub fn note_parent() {
+    #[cfg(unix)]
+    let _ = PARENT.set(std::os::unix::process::parent_id());
+}
+
 /// Raises `stop` once this process's parent has exited (Unix: the process is handed to another
-/// parent then). Checked twice a second on its own thread.
+/// parent then, or was already when it started under init). Checked five times a second on its
+/// own thread.
 pub fn watch_parent(stop: Arc<AtomicBool>) {
     #[cfg(unix)]
     {
-        let parent = std::os::unix::process::parent_id();
+        let parent = *PARENT.get_or_init(std::os::unix::process::parent_id);
         std::thread::spawn(move || loop {
-            std::thread::sleep(std::time::Duration::from_millis(500));
-            if std::os::unix::process::parent_id() != parent {
+            if parent == 1 || std::os::unix::process::parent_id() != parent {
                 tracing::warn!("parent process {parent} exited: stopping");
                 stop.store(true, Ordering::Relaxed);
                 return;
             }
+            std::thread::sleep(std::time::Duration::from_millis(200));
         });
     }
     #[cfg(not(unix))]
