@@ -8,13 +8,14 @@
 //! | `nmea-tcp:HOST:PORT` | NMEA from a TCP server |
 //! | `nmea-udp:PORT` | NMEA datagrams on a UDP port |
 //! | `gpsd:HOST:PORT` | gpsd's JSON reports (port 2947 by default: `gpsd:HOST`) |
+//! | `orpheus-udp:HOST:PORT` | a navigation computer speaking the Orpheus waypoint protocol (a sink) |
 //! | `sim` | the built-in simulator |
 
 use std::fmt;
 
 /// Why a spec was refused.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
-#[error("source {spec:?}: {why} (expected one of ros2:TOPIC, vlp16-udp:PORT, nmea-serial:DEVICE@BAUD, nmea-tcp:HOST:PORT, nmea-udp:PORT, gpsd:HOST[:PORT], sim)")]
+#[error("source {spec:?}: {why} (expected one of ros2:TOPIC, vlp16-udp:PORT, nmea-serial:DEVICE@BAUD, nmea-tcp:HOST:PORT, nmea-udp:PORT, gpsd:HOST[:PORT], orpheus-udp:HOST:PORT, sim)")]
 pub struct SpecError {
     /// The spec as given.
     pub spec: String,
@@ -62,6 +63,13 @@ pub enum SourceSpec {
         /// Host.
         host: String,
         /// Port.
+        port: u16,
+    },
+    /// A navigation computer that follows waypoint lists (Orpheus protocol over UDP).
+    OrpheusUdp {
+        /// Its host.
+        host: String,
+        /// Its port.
         port: u16,
     },
     /// The simulator.
@@ -140,6 +148,10 @@ impl SourceSpec {
                 let (host, port) = host_port(rest, Some(GPSD_PORT)).map_err(err)?;
                 Ok(SourceSpec::Gpsd { host, port })
             }
+            "orpheus-udp" => {
+                let (host, port) = host_port(rest, None).map_err(err)?;
+                Ok(SourceSpec::OrpheusUdp { host, port })
+            }
             "nmea-serial" => {
                 let (device, baud) = rest
                     .rsplit_once('@')
@@ -162,7 +174,10 @@ impl SourceSpec {
 
     /// Whether this spec can deliver GNSS (NMEA, gpsd, a NavSatFix topic, the simulator).
     pub fn is_gnss(&self) -> bool {
-        !matches!(self, SourceSpec::Vlp16Udp { .. })
+        !matches!(
+            self,
+            SourceSpec::Vlp16Udp { .. } | SourceSpec::OrpheusUdp { .. }
+        )
     }
 }
 
@@ -190,6 +205,7 @@ impl fmt::Display for SourceSpec {
             SourceSpec::NmeaTcp { host, port } => write!(f, "nmea-tcp:{}:{port}", hp(host)),
             SourceSpec::NmeaUdp { port } => write!(f, "nmea-udp:{port}"),
             SourceSpec::Gpsd { host, port } => write!(f, "gpsd:{}:{port}", hp(host)),
+            SourceSpec::OrpheusUdp { host, port } => write!(f, "orpheus-udp:{}:{port}", hp(host)),
             SourceSpec::Sim => write!(f, "sim"),
         }
     }
@@ -242,6 +258,13 @@ mod tests {
                 SourceSpec::Gpsd {
                     host: "localhost".into(),
                     port: 2947,
+                },
+            ),
+            (
+                "orpheus-udp:192.168.1.20:10110",
+                SourceSpec::OrpheusUdp {
+                    host: "192.168.1.20".into(),
+                    port: 10110,
                 },
             ),
             ("sim", SourceSpec::Sim),

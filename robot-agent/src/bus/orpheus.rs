@@ -54,6 +54,8 @@ impl OrpheusUdp {
                     }
                 }
                 Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => break,
+                // The ICMP answer to a datagram sent before the NC listened: it is not up yet.
+                Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => break,
                 Err(e) => {
                     tracing::warn!("orpheus: receive failed: {e}");
                     break;

@@ -5,6 +5,7 @@
 use crate::bus::{BusConfig, ZenohSettings};
 use crate::config::{default_config_dir, load_agent_config_with, load_run_file};
 use crate::run::io_config::IoConfig;
+use crate::run::nav_computer::NavComputerBase;
 use crate::run::robot::{run_robot, Base, NoBase, RobotRun, SourceStart};
 use crate::run::ros2::{Ros2Input, Ros2Link};
 use crate::runtime::stamps::Topic;
@@ -63,6 +64,11 @@ pub struct RunArgs {
     /// Base command sink (`ros2:TOPIC`, or "" to never drive).
     #[arg(long, value_name = "SPEC")]
     pub cmd_vel: Option<String>,
+    /// A navigation computer that follows waypoint lists itself (`orpheus-udp:HOST:PORT`):
+    /// goals and route repeats go to it as waypoint lists and edits (methods.md §7); `cmd_vel`
+    /// then carries only the operator's driving.
+    #[arg(long, value_name = "SPEC")]
+    pub nav_computer: Option<String>,
     /// Print every GNSS fix the agent takes as a JSON line on stdout (`{"fix": {...}}`).
     #[arg(long)]
     pub print_fixes: bool,
@@ -232,16 +238,17 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let gnss = spec("gnss", &args.gnss, &io.gnss)?;
     let heading = spec("heading", &args.heading, &io.heading)?;
     let mut cmd_vel = spec("cmd-vel", &args.cmd_vel, &io.cmd_vel)?;
+    let mut nav_computer = spec("nav-computer", &args.nav_computer, &io.nav_computer)?;
     let lidar_input = lidar_msg(args.lidar_msg.as_deref().unwrap_or(&io.lidar_msg))?;
     if args.no_lidar {
         anyhow::ensure!(
             args.lidar.as_deref().is_none_or(|s| s.trim().is_empty()),
             "--no-lidar and --lidar: choose one"
         );
-        if args.cmd_vel.is_some() {
+        if args.cmd_vel.is_some() || args.nav_computer.is_some() {
             tracing::warn!("--no-lidar: the base is never driven");
         }
-        (lidar, cmd_vel) = (None, None);
+        (lidar, cmd_vel, nav_computer) = (None, None, None);
     } else {
         anyhow::ensure!(
             lidar.is_some(),
@@ -341,15 +348,25 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         inputs.push(Topic::Gnss);
         names.push(format!("gnss={s}"));
     }
-    let base: Box<dyn Base> = match &cmd_vel {
+    let manual: Box<dyn Base> = match &cmd_vel {
         Some(SourceSpec::Ros2 { topic }) => {
             link.as_ref().expect("ROS 2 link opened").base(topic)?
         }
         Some(other) => anyhow::bail!("--cmd-vel {other}: use ros2:TOPIC (or \"\" to never drive)"),
         None => {
-            tracing::warn!("no --cmd-vel: the base is never driven");
+            if nav_computer.is_none() {
+                tracing::warn!("no --cmd-vel: the base is never driven");
+            }
             Box::new(NoBase)
         }
+    };
+    let base: Box<dyn Base> = match &nav_computer {
+        Some(SourceSpec::OrpheusUdp { host, port }) => {
+            names.push(format!("nav-computer=orpheus-udp:{host}:{port}"));
+            Box::new(NavComputerBase::connect(host, *port, manual)?)
+        }
+        Some(other) => anyhow::bail!("--nav-computer {other}: use orpheus-udp:HOST:PORT"),
+        None => manual,
     };
 
     let stop = Arc::new(AtomicBool::new(false));

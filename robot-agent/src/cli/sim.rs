@@ -71,6 +71,15 @@ pub struct SimArgs {
     /// `--serve-ros2`: period of the simulator's truth lines on stdout, seconds.
     #[arg(long, default_value_t = 1.0, value_name = "S")]
     pub truth_period_s: f64,
+    /// `--serve-ros2`: also be the robot's navigation computer on UDP, `udp:PORT` (loopback) or
+    /// `udp:HOST:PORT`: it drives the robot along the waypoint lists `robot-agent run
+    /// --nav-computer orpheus-udp:...` sends (Orpheus protocol, methods.md §7).
+    #[arg(long, value_name = "udp:[HOST:]PORT")]
+    pub nav_computer_listen: Option<String>,
+    /// `--serve-ros2`: obstacles that appear at a simulated time, `FILE@T_S` (FILE in the
+    /// format of `--add-obstacles`), e.g. a car parked on a taught route; repeatable.
+    #[arg(long, value_name = "FILE@T_S")]
+    pub obstacles_at: Vec<String>,
     /// Missions and the live robot (`--goal`, `--goal-gnss`, `--teach-repeat`, `--robot`, `--connect`).
     #[command(flatten)]
     pub mission: super::mission::MissionArgs,
@@ -183,6 +192,26 @@ fn run_world(args: &SimArgs) -> anyhow::Result<()> {
         listen: args.listen.clone(),
         ..Default::default()
     };
+    let nav_computer = args
+        .nav_computer_listen
+        .as_deref()
+        .map(parse_udp_listen)
+        .transpose()?;
+    let mut obstacles_at = Vec::new();
+    for spec in &args.obstacles_at {
+        let (file, at) = spec
+            .rsplit_once('@')
+            .context("--obstacles-at: want FILE@T_S")?;
+        let at: f64 = at
+            .parse()
+            .ok()
+            .filter(|t: &f64| t.is_finite() && *t >= 0.0)
+            .with_context(|| format!("--obstacles-at {spec:?}: T_S must be seconds >= 0"))?;
+        let obstacles = crate::run::ObstacleFile::load(std::path::Path::new(file))
+            .with_context(|| format!("--obstacles-at {file}"))?
+            .obstacles();
+        obstacles_at.push((at, obstacles));
+    }
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     super::run::stop_on_signals(stop.clone())?;
     if args.mission.exit_with_parent {
@@ -201,9 +230,28 @@ fn run_world(args: &SimArgs) -> anyhow::Result<()> {
             topics: Default::default(),
             silences: args.silence.clone(),
             truth_period_s: args.truth_period_s,
+            nav_computer,
+            obstacles_at,
         },
         stop,
     )
+}
+
+/// `udp:PORT` (on loopback) or `udp:HOST:PORT`.
+fn parse_udp_listen(s: &str) -> anyhow::Result<std::net::SocketAddr> {
+    use std::net::ToSocketAddrs;
+    let rest = s
+        .strip_prefix("udp:")
+        .with_context(|| format!("--nav-computer-listen {s:?}: want udp:PORT or udp:HOST:PORT"))?;
+    let addr = match rest.parse::<u16>() {
+        Ok(port) => std::net::SocketAddr::from(([127, 0, 0, 1], port)),
+        Err(_) => rest
+            .to_socket_addrs()
+            .ok()
+            .and_then(|mut a| a.next())
+            .with_context(|| format!("--nav-computer-listen {s:?}: not HOST:PORT"))?,
+    };
+    Ok(addr)
 }
 
 /// How the headless run is driven.

@@ -32,6 +32,9 @@ pub struct IoConfig {
     pub heading: String,
     /// Base commands: `ros2:TOPIC` (geometry_msgs/Twist), or empty (the robot is not driven).
     pub cmd_vel: String,
+    /// A navigation computer that follows waypoint lists (`orpheus-udp:HOST:PORT`), or empty:
+    /// missions go to it as routes, and `cmd_vel` keeps only the operator's driving.
+    pub nav_computer: String,
     /// ROS 2 key form: `bridge` (zenoh-bridge-ros2dds) or `rmw` (rmw_zenoh).
     pub ros2_keys: String,
     /// ROS 2 namespace of the robot's topics (empty for none).
@@ -54,6 +57,7 @@ impl Default for IoConfig {
             gnss: "ros2:fix".into(),
             heading: String::new(),
             cmd_vel: "ros2:cmd_vel".into(),
+            nav_computer: String::new(),
             ros2_keys: "bridge".into(),
             ros2_namespace: String::new(),
             ros2_domain_id: 0,

@@ -10,6 +10,7 @@ pub mod gnss_sources;
 pub mod io_config;
 pub mod live;
 pub mod map_eval;
+pub mod nav_computer;
 pub mod robot;
 pub mod ros2;
 pub mod stages;

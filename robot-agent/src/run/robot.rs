@@ -7,6 +7,7 @@
 use crate::bus::{BusConfig, BusHandle};
 use crate::runtime::faults::FaultLog;
 use crate::runtime::outputs::{apply_command, LoopCounters, Outputs};
+use crate::runtime::route::{RouteOrder, RouteWatch};
 use crate::runtime::stamps::Topic;
 use crate::runtime::{Input, Runtime, RuntimeLimits};
 use agent::{AgentConfig, Cmd};
@@ -33,6 +34,16 @@ pub type SourceStart = Box<dyn FnOnce(Sender<SourceEvent>, Arc<AtomicBool>) + Se
 pub trait Base: Send {
     /// Sends one velocity command.
     fn drive(&mut self, cmd: Cmd) -> anyhow::Result<()>;
+    /// Whether this base follows waypoint lists by itself, so the loop hands it the mission's
+    /// route ([`Base::follow`]) every control period.
+    fn follows_routes(&self) -> bool {
+        false
+    }
+    /// The route of the mission in force at session time `t_s` (`None`: no mission with a
+    /// route), each control period before [`Base::drive`], when [`Base::follows_routes`].
+    fn follow(&mut self, _t_s: f64, _route: Option<&RouteOrder>) -> anyhow::Result<()> {
+        Ok(())
+    }
     /// The robot stops for good (the runtime is closing).
     fn stop(&mut self) -> anyhow::Result<()> {
         self.drive(Cmd::default())
@@ -124,6 +135,7 @@ pub fn run_robot(mut r: RobotRun, stop: Arc<AtomicBool>) -> anyhow::Result<serde
     let mut pending = Some(first);
     let mut fault_log = FaultLog::default();
     let mut last_rec_faults: Vec<String> = Vec::new();
+    let mut routes = RouteWatch::default();
     while !stop.load(Ordering::Relaxed) {
         let event = match pending.take() {
             Some(e) => Some(e),
@@ -174,6 +186,12 @@ pub fn run_robot(mut r: RobotRun, stop: Arc<AtomicBool>) -> anyhow::Result<serde
             if let Some(rec) = rec.as_mut() {
                 // The control time a replay runs control at (this loop's clock is the wall's).
                 rec.control(now, rt.agent(), cmd);
+            }
+            if r.base.follows_routes() {
+                let order = routes.order(rt.agent(), now, rt.base_stopped(now));
+                if let Err(e) = r.base.follow(now, order.as_ref()) {
+                    tracing::warn!("base route: {e:#}");
+                }
             }
             if let Err(e) = r.base.drive(cmd) {
                 tracing::warn!("base command: {e:#}");

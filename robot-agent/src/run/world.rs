@@ -6,11 +6,19 @@
 //! against it exactly as against a real robot (`robot-agent run`).
 //!
 //! Its first stdout line is a JSON object with the world's datum (`"datum": "LAT,LON,H"`, for
-//! `robot-agent run --datum`); then every `--truth-period-s` (1 s) it prints a JSON line with the simulator's truth (pose, speed, collisions,
-//! commands received) on stdout: what tests judge the agent against, never sent to the agent.
+//! `robot-agent run --datum`); then every `--truth-period-s` (1 s) it prints a JSON line with the
+//! simulator's truth (pose, speed, collisions, commands received, the navigation computer's
+//! state) on stdout: what tests judge the agent against, never sent to the agent.
+//!
+//! With a navigation computer (`--nav-computer-listen`), the world also plays the robot's own
+//! waypoint-following computer ([`crate::navcomp::follower`]) on a UDP port: it steers on the
+//! plant's true pose (an ideal RTK-INS: what is under test is the route terranav sends and
+//! edits, not the NC's localisation) whenever it has a route and a speed above 0 and no
+//! `cmd_vel` is fresh (the operator's driving comes first, as on a robot's twist mux).
 
 use super::SIM_DT_S;
 use crate::bus::ZenohSettings;
+use crate::navcomp::follower::{FollowerConfig, WaypointFollower};
 use common::geo::{parse_sentence, Sentence};
 use io::cdr;
 use io::ros2::keys;
@@ -18,6 +26,7 @@ use io::ros2::{Ros2Bus, Ros2Graph, Ros2Publisher};
 use io::sample::{Cloud, FixStatus, Heading, Imu, NavFix, Odometry, Transform, Twist};
 use nalgebra::Isometry3;
 use std::io::Write;
+use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -131,6 +140,80 @@ pub struct WorldOptions {
     pub silences: Vec<Silence>,
     /// Period of the truth lines on stdout, seconds.
     pub truth_period_s: f64,
+    /// A simulated navigation computer listening on this UDP address (see the module docs).
+    pub nav_computer: Option<SocketAddr>,
+    /// Obstacles that appear at a simulated time, seconds (sorted by time here).
+    pub obstacles_at: Vec<(f64, Vec<sim::Obstacle>)>,
+}
+
+/// The robot's own navigation computer, simulated: the Orpheus protocol on a UDP socket around a
+/// [`WaypointFollower`]. It answers (`$NAWPT`) to whoever sent it the last datagram.
+struct SimNavComputer {
+    socket: UdpSocket,
+    peer: Option<SocketAddr>,
+    follower: WaypointFollower,
+    buf: Vec<u8>,
+}
+
+impl SimNavComputer {
+    fn bind(addr: SocketAddr, datum: common::msg::Datum) -> anyhow::Result<Self> {
+        let socket = UdpSocket::bind(addr)
+            .map_err(|e| anyhow::anyhow!("navigation computer on udp {addr}: {e}"))?;
+        socket.set_nonblocking(true)?;
+        tracing::info!("navigation computer listening on udp {addr}");
+        Ok(Self {
+            socket,
+            peer: None,
+            follower: WaypointFollower::new(FollowerConfig::default(), datum),
+            buf: vec![0; 64 * 1024],
+        })
+    }
+
+    /// Takes every datagram waiting.
+    fn poll(&mut self) {
+        loop {
+            match self.socket.recv_from(&mut self.buf) {
+                Ok((n, from)) => {
+                    self.peer = Some(from);
+                    let text = String::from_utf8_lossy(&self.buf[..n]).into_owned();
+                    for line in text.split(['\r', '\n']).filter(|l| !l.trim().is_empty()) {
+                        if let Err(e) = self.follower.on_line(line) {
+                            tracing::warn!("navigation computer: refused {line:?}: {e}");
+                        }
+                    }
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => break,
+                Err(e) => {
+                    tracing::debug!("navigation computer: receive: {e}");
+                    break;
+                }
+            }
+        }
+    }
+
+    /// The command for the robot at `pose`, reporting the waypoints reached.
+    fn step(&mut self, pose: &common::geom::Pose2) -> (f64, f64) {
+        let (cmd, reports) = self.follower.step(pose);
+        if let Some(peer) = self.peer {
+            for r in reports {
+                if let Err(e) = self.socket.send_to(r.as_bytes(), peer) {
+                    tracing::debug!("navigation computer: sending {r:?}: {e}");
+                }
+            }
+        }
+        cmd
+    }
+
+    fn truth(&self) -> serde_json::Value {
+        let (route, target, speed_pct) = self.follower.state();
+        serde_json::json!({
+            "waypoints": route.len(),
+            "target": target,
+            "speed_pct": speed_pct,
+            "driving": self.follower.active(),
+            "counts": self.follower.counts,
+        })
+    }
 }
 
 struct Publishers {
@@ -230,6 +313,13 @@ pub fn serve_world(
         .build()?;
     let depth_on = opts.sim.depth.enabled;
     let mut simu = sim::Simulation::new(scenario, opts.sim);
+    let mut nc = opts
+        .nav_computer
+        .map(|a| SimNavComputer::bind(a, scenario.datum()))
+        .transpose()?;
+    let mut obstacles_at = opts.obstacles_at.clone();
+    obstacles_at.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut obstacles_at = obstacles_at.into_iter().peekable();
     let t = &opts.topics;
     let config = opts.zenoh.to_config()?;
     let (bus, pubs) = rt.block_on(async {
@@ -333,14 +423,30 @@ pub fn serve_world(
             std::thread::sleep(Duration::from_millis(1));
             continue;
         }
-        let (v, w) = match cmd.lock().map(|c| *c) {
+        let fresh = match cmd.lock().map(|c| *c) {
             Ok((tw, Some(at))) if at.elapsed().as_secs_f64() <= CMD_TIMEOUT_S => {
-                (tw.linear_x_mps, tw.angular_z_rps)
+                Some((tw.linear_x_mps, tw.angular_z_rps))
             }
-            _ => (0.0, 0.0),
+            _ => None,
         };
+        let nc_cmd = nc.as_mut().map(|nc| {
+            nc.poll();
+            nc.step(&simu.truth_pose2())
+        });
+        let (v, w) = fresh.or(nc_cmd).unwrap_or((0.0, 0.0));
         let out = simu.step(SIM_DT_S, v, w);
         let t_s = simu.time_s();
+        while let Some((_, obstacles)) = obstacles_at.next_if(|(at, _)| t_s >= *at) {
+            simu.add_obstacles(&obstacles);
+            tracing::info!("{} obstacles appeared at {t_s:.1} s", obstacles.len());
+            let mut o = stdout.lock();
+            let _ = writeln!(
+                o,
+                "{}",
+                serde_json::json!({ "t_s": t_s, "obstacles_added": obstacles.len() })
+            );
+            let _ = o.flush();
+        }
         collisions += out.collisions.len();
         if t_s >= next_tf_s {
             next_tf_s += 1.0;
@@ -409,6 +515,7 @@ pub fn serve_world(
                 "collisions": collisions,
                 "cmd_vel_received": cmds_ok.load(Ordering::Relaxed),
                 "cmd_vel_refused": cmds_bad.load(Ordering::Relaxed),
+                "nc": nc.as_ref().map(SimNavComputer::truth),
             });
             let mut o = stdout.lock();
             let _ = writeln!(o, "{line}");

@@ -10,6 +10,7 @@
 
 pub mod faults;
 pub mod outputs;
+pub mod route;
 pub mod stamps;
 
 use agent::{Agent, AgentConfig, Cmd, Identity};
@@ -447,6 +448,11 @@ impl Runtime {
             cmd
         };
         Some(self.cmd)
+    }
+
+    /// Whether a sensor fault holds the base at `now_s`.
+    pub fn base_stopped(&self, now_s: f64) -> bool {
+        self.watchdog.base_stopped(now_s)
     }
 
     /// The command last sent.

@@ -6,6 +6,14 @@
 //! (`$CAINS`) so the NC drives terranav's detour. Ids are positions in the NC's list: an insertion
 //! at `id` shifts the rest, so removals are sent from the highest id down and insertions from the
 //! lowest up, which keeps every id valid while the NC applies them one by one.
+//!
+//! When terranav owns the route (a route it taught and repeats, `robot-agent run
+//! --nav-computer`), it sends the list itself in the same `$NALST` form ([`OrpheusGateway::send_list`])
+//! and keeps it in step with the mission by edits ([`sync`]); [`follower`] is a navigation
+//! computer that drives a simulated robot along such a list.
+
+pub mod follower;
+pub mod sync;
 
 use common::geo::orpheus::{format_orpheus, parse_orpheus, OrpheusMessage, RoutePoint};
 
@@ -164,6 +172,33 @@ impl OrpheusGateway {
             p.id = i as u32;
         }
         Ok(out)
+    }
+
+    /// Makes `points` (lat, lon degrees, position errors `err_m`) the NC's route and returns the
+    /// sentences announcing it (`$NALST` ids 0.., then `$NALST,END`): the list a control
+    /// application that owns the route uploads. The NC starts it from id 0.
+    pub fn send_list(&mut self, points: &[(f64, f64)], err_m: f64) -> Vec<String> {
+        self.route = points
+            .iter()
+            .enumerate()
+            .map(|(i, (lat, lon))| RoutePoint {
+                id: i as u32,
+                lat_deg: *lat,
+                lon_deg: *lon,
+                lat_err_m: err_m,
+                lon_err_m: err_m,
+            })
+            .collect();
+        self.incoming.clear();
+        self.complete = true;
+        self.reached = None;
+        let mut out: Vec<String> = self
+            .route
+            .iter()
+            .map(|p| format_orpheus(&OrpheusMessage::RoutePoint(*p)))
+            .collect();
+        out.push(format_orpheus(&OrpheusMessage::RouteEnd));
+        out
     }
 
     /// The sentence that sets the NC's speed limit, percent of its maximum.
