@@ -7,6 +7,8 @@
 //! - [`geo`]: WGS-84 geodetic / ECEF / ENU conversions and NMEA-0183 sentences.
 //! - [`geom`]: small SE(2)/SE(3) helpers over nalgebra.
 //! - [`robot`]: the robot profile (body, limits, sensor mounts) that agent, simulator and station read.
+//! - [`security`]: identities, the access rules on the key space, TLS settings, the PKI folder layout,
+//!   and which endpoints are loopback.
 #![deny(missing_docs)]
 
 pub mod command;
@@ -16,3 +18,4 @@ pub mod grid;
 pub mod keys;
 pub mod msg;
 pub mod robot;
+pub mod security;

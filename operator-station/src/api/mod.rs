@@ -1,5 +1,7 @@
 //! axum REST + WebSocket API for the browser UI, exactly as `operator-station/API.md`, and the
-//! UI's static files.
+//! UI's static files; served over TLS by [`tls`] when asked (always off loopback).
+
+pub mod tls;
 
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;
@@ -599,9 +601,16 @@ fn known_robot(st: &AppState, robot: &str) -> ApiResult<RobotId> {
     }
 }
 
-async fn put(st: &AppState, robot: &RobotId, topic: Topic, payload: Vec<u8>) -> ApiResult<()> {
+/// Sends `cmd` to `robot` in its envelope (the station's sender id, next sequence, now).
+async fn put<T: serde::Serialize>(
+    st: &AppState,
+    robot: &RobotId,
+    topic: Topic,
+    cmd: &T,
+) -> ApiResult<()> {
+    let payload = msg::encode_cmd(st.inner.cmd_header(), cmd);
     st.inner
-        .session
+        .session()
         .put(keys::key(robot, topic), payload)
         .congestion_control(zenoh::qos::CongestionControl::Block)
         .await
@@ -679,7 +688,7 @@ async fn cmd_goal(
         target,
         tolerance_m: tol,
     };
-    put(&st, &id, Topic::CmdGoal, msg::encode(&cmd)).await?;
+    put(&st, &id, Topic::CmdGoal, &cmd).await?;
     let sent = serde_json::to_value(&cmd).map_err(internal)?;
     st.inner.store(StoreOp::Goal {
         robot: robot.clone(),
@@ -705,7 +714,7 @@ async fn cmd_stop(
     let cmd = StopCmd {
         reason: b.reason.unwrap_or_else(|| "operator".into()),
     };
-    put(&st, &id, Topic::CmdStop, msg::encode(&cmd)).await?;
+    put(&st, &id, Topic::CmdStop, &cmd).await?;
     Ok(accepted(serde_json::to_value(&cmd).map_err(internal)?))
 }
 
@@ -733,7 +742,7 @@ async fn cmd_drive(
         omega_rps: b.omega_rps,
         deadman: b.deadman,
     };
-    put(&st, &id, Topic::CmdDrive, msg::encode(&cmd)).await?;
+    put(&st, &id, Topic::CmdDrive, &cmd).await?;
     Ok(accepted(serde_json::to_value(&cmd).map_err(internal)?))
 }
 
@@ -755,7 +764,7 @@ async fn cmd_speed(
     let cmd = SpeedCmd {
         limit_mps: b.limit_mps,
     };
-    put(&st, &id, Topic::CmdSpeed, msg::encode(&cmd)).await?;
+    put(&st, &id, Topic::CmdSpeed, &cmd).await?;
     Ok(accepted(serde_json::to_value(&cmd).map_err(internal)?))
 }
 
@@ -798,7 +807,7 @@ async fn cmd_route(
         "cancel" => RouteCmd::Cancel,
         a => return Err(bad(format!("unknown action {a:?}"))),
     };
-    put(&st, &id, Topic::CmdRoute, msg::encode(&cmd)).await?;
+    put(&st, &id, Topic::CmdRoute, &cmd).await?;
     let sent = match &cmd {
         RouteCmd::Repeat { route, direction } => {
             json!({"Repeat": {"route_id": route.route_id, "direction": direction}})
