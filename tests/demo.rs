@@ -48,8 +48,9 @@ fn running(pid: u32) -> bool {
         .unwrap_or(false)
 }
 
-/// Starts a one-robot demo and returns it with its robot's pid once the station serves.
-fn start_demo() -> (KillOnDrop, u32) {
+/// Starts a one-robot demo and returns it with its robot's two pids (the simulated world serving
+/// ROS 2 topics, and `robot-agent run` on them) once the station serves.
+fn start_demo() -> (KillOnDrop, Vec<u32>) {
     let port = free_port();
     let mut demo = KillOnDrop::spawn(
         Command::new(bin("operator-station"))
@@ -68,15 +69,17 @@ fn start_demo() -> (KillOnDrop, u32) {
         );
         let robots: Vec<u32> = children_of(demo.0.id())
             .into_iter()
-            .filter(|(_, cmd)| cmd.contains("robot-agent") && cmd.contains(" sim "))
+            .filter(|(_, cmd)| {
+                cmd.contains("robot-agent") && (cmd.contains(" sim ") || cmd.contains(" run "))
+            })
             .map(|(pid, _)| pid)
             .collect();
-        if TcpStream::connect(("127.0.0.1", port)).is_ok() && robots.len() == 1 {
-            return (demo, robots[0]);
+        if TcpStream::connect(("127.0.0.1", port)).is_ok() && robots.len() == 2 {
+            return (demo, robots);
         }
         assert!(
             t0.elapsed() < Duration::from_secs(60),
-            "demo did not serve with one robot within 60 s (robots {robots:?})"
+            "demo did not serve with one robot (world and agent) within 60 s (processes {robots:?})"
         );
         std::thread::sleep(Duration::from_millis(100));
     }
@@ -116,14 +119,16 @@ fn a_killed_demo_leaves_no_robot_running() {
     if !have_proc() {
         return;
     }
-    let (mut demo, robot) = start_demo();
-    assert!(running(robot));
+    let (mut demo, robots) = start_demo();
+    assert!(robots.iter().all(|p| running(*p)));
     signal(demo.0.id(), "-KILL");
     let _ = demo.0.wait();
-    assert!(
-        gone_within(robot, Duration::from_secs(10)),
-        "robot-agent {robot} still runs 10 s after its station was killed"
-    );
+    for robot in robots {
+        assert!(
+            gone_within(robot, Duration::from_secs(10)),
+            "robot-agent {robot} still runs 10 s after its station was killed"
+        );
+    }
 }
 
 #[test]
@@ -131,7 +136,7 @@ fn a_terminated_demo_stops_its_robots_and_exits_cleanly() {
     if !have_proc() {
         return;
     }
-    let (mut demo, robot) = start_demo();
+    let (mut demo, robots) = start_demo();
     signal(demo.0.id(), "-TERM");
     let t0 = Instant::now();
     let status = loop {
@@ -145,8 +150,10 @@ fn a_terminated_demo_stops_its_robots_and_exits_cleanly() {
         std::thread::sleep(Duration::from_millis(50));
     };
     assert!(status.success(), "demo exited with {status} on SIGTERM");
-    assert!(
-        gone_within(robot, Duration::from_secs(5)),
-        "robot-agent {robot} outlived its terminated station"
-    );
+    for robot in robots {
+        assert!(
+            gone_within(robot, Duration::from_secs(5)),
+            "robot-agent {robot} outlived its terminated station"
+        );
+    }
 }

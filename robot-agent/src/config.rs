@@ -65,10 +65,75 @@ pub fn default_config_dir() -> PathBuf {
     PathBuf::from("config")
 }
 
+/// Sections of `robot.toml` that configure the runtime, not the robot's body.
+const RUN_SECTIONS: [&str; 2] = ["io", "runtime"];
+
+/// The robot file as a table (empty when the file is missing).
+fn robot_table(path: &Path) -> Result<(String, toml::Table), ConfigError> {
+    let shown = path.display().to_string();
+    if !path.exists() {
+        return Ok((shown, toml::Table::new()));
+    }
+    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+        path: shown.clone(),
+        source,
+    })?;
+    let table = text
+        .parse::<toml::Table>()
+        .map_err(|e| ConfigError::Parse {
+            path: shown.clone(),
+            msg: e.to_string(),
+        })?;
+    Ok((shown, table))
+}
+
+fn section<T: serde::de::DeserializeOwned + Default>(
+    path: &str,
+    table: &toml::Table,
+    name: &str,
+) -> Result<T, ConfigError> {
+    match table.get(name) {
+        None => Ok(T::default()),
+        Some(v) => v.clone().try_into().map_err(|e| ConfigError::Parse {
+            path: path.to_owned(),
+            msg: format!("[{name}]: {e}"),
+        }),
+    }
+}
+
+/// The robot profile: `robot.toml` without its runtime sections.
+fn load_profile(robot_file: &Path) -> Result<common::robot::RobotProfile, ConfigError> {
+    let (path, mut table) = robot_table(robot_file)?;
+    for s in RUN_SECTIONS {
+        table.remove(s);
+    }
+    toml::Value::Table(table)
+        .try_into()
+        .map_err(|e| ConfigError::Parse {
+            path,
+            msg: e.to_string(),
+        })
+}
+
+/// The `[io]` and `[runtime]` sections of the robot file (`robot-agent run`).
+pub fn load_run_file(robot_file: &Path) -> Result<crate::run::io_config::RunFile, ConfigError> {
+    let (path, table) = robot_table(robot_file)?;
+    Ok(crate::run::io_config::RunFile {
+        io: section(&path, &table, "io")?,
+        runtime: section(&path, &table, "runtime")?,
+    })
+}
+
 /// Loads the agent's configuration from `dir` (missing files keep the defaults).
 pub fn load_agent_config(dir: &Path) -> Result<AgentConfig, ConfigError> {
+    load_agent_config_with(dir, &dir.join("robot.toml"))
+}
+
+/// As [`load_agent_config`], with the robot file at `robot_file` (another robot's profile next
+/// to the shared algorithm files).
+pub fn load_agent_config_with(dir: &Path, robot_file: &Path) -> Result<AgentConfig, ConfigError> {
     Ok(AgentConfig::from_parts(
-        load(dir, "robot.toml")?,
+        load_profile(robot_file)?,
         load(dir, "slam.toml")?,
         load(dir, "mapper.toml")?,
         load(dir, "planner.toml")?,
@@ -106,6 +171,35 @@ mod tests {
         assert_eq!(mission.teach, TeachConfig::default());
         assert_eq!(mission.repeat, RepeatConfig::default());
         assert_eq!(mission.gnss, GnssConfig::default());
+    }
+
+    #[test]
+    fn run_sections_load_and_refuse_unknown_keys() {
+        let run = load_run_file(&shipped().join("robot.toml")).unwrap();
+        assert_eq!(run.io, crate::run::io_config::IoConfig::default());
+        assert_eq!(
+            run.runtime.limits().unwrap(),
+            crate::runtime::RuntimeLimits::default()
+        );
+        let d = tempfile::tempdir().unwrap();
+        let body = std::fs::read_to_string(shipped().join("robot.toml")).unwrap();
+        std::fs::write(
+            d.path().join("robot.toml"),
+            body.replace("lidar_timeout_s = 0.5", "lidar_timeout_s = 0.8"),
+        )
+        .unwrap();
+        let run = load_run_file(&d.path().join("robot.toml")).unwrap();
+        assert_eq!(run.runtime.lidar_timeout_s, 0.8);
+        // The profile still loads from the same file.
+        assert_eq!(
+            load_agent_config(d.path()).unwrap().profile.name,
+            "husky-a200"
+        );
+        std::fs::write(d.path().join("robot.toml"), "[io]\nlidarr = \"x\"\n").unwrap();
+        let e = load_run_file(&d.path().join("robot.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("robot.toml") && e.contains("lidarr"), "{e}");
     }
 
     #[test]

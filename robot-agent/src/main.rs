@@ -20,6 +20,8 @@ enum Command {
     Geo(cli::geo::GeoArgs),
     /// LiDAR tools: decode Velodyne VLP-16 packets (pcap, ROS 2 bag) into PCD scans.
     Lidar(cli::lidar::LidarArgs),
+    /// Run the agent on a robot: ROS 2 over Zenoh or native drivers in, cmd_vel out, until SIGINT/SIGTERM.
+    Run(Box<cli::run::RunArgs>),
     /// Run a simulated robot in the built-in world (live on the bus, or headless to a report).
     Sim(Box<cli::sim::SimArgs>),
     /// SLAM tools: evaluate ICP SLAM on a recorded sequence.
@@ -43,6 +45,7 @@ fn main() -> std::process::ExitCode {
         Command::Gnss(a) => cli::gnss::run(a),
         Command::Geo(a) => cli::geo::run(a),
         Command::Lidar(a) => cli::lidar::run(a),
+        Command::Run(a) => cli::run::run(*a),
         Command::Sim(a) => cli::sim::run(*a),
         Command::Slam(a) => cli::slam::run(a),
         Command::Map(a) => cli::map::run(a),

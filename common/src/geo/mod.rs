@@ -4,6 +4,7 @@
 //!   ellipsoid (no flat-earth approximation), plus [`LocalFrame`] for repeated conversions at one datum.
 //! - [`nmea`]: NMEA-0183 framing and checksum, parsers for `GGA`, `RMC`, `HDT` (and `VTG`/`ZDA`/...
 //!   recognised and ignored), and formatters so a simulated receiver emits what the parser reads.
+//! - [`attitude`]: `THS` (true heading with a mode flag) and `$PASHR` (GNSS/INS attitude).
 //! - [`trimble`]: Trimble proprietary `$PTNL,AVR` (dual-antenna attitude) and `$PTNL,GGK` (RTK
 //!   position with ellipsoidal height).
 //! - [`orpheus`]: the Orpheus navigation-computer protocol (route lists and route edits).
@@ -11,11 +12,13 @@
 //! Geodetic points are [`crate::msg::Datum`] (degrees, metres above the ellipsoid); ECEF and
 //! ENU vectors are `nalgebra::Vector3<f64>` in metres.
 
+pub mod attitude;
 pub mod nmea;
 pub mod orpheus;
 pub mod trimble;
 pub mod wgs84;
 
+pub use attitude::{Pashr, Ths};
 pub use nmea::{
     format_gga, format_hdt, format_rmc, parse_sentence, Gga, Hdt, NmeaError, Rmc, Sentence,
     UtcDate, UtcTime,

@@ -16,6 +16,7 @@
 
 use std::fmt;
 
+use super::attitude::{self, Pashr, Ths};
 use super::trimble;
 
 /// Why a line is not a usable NMEA sentence.
@@ -286,6 +287,10 @@ pub enum Sentence {
     Rmc(Rmc),
     /// `--HDT`.
     Hdt(Hdt),
+    /// `--THS`: true heading with a mode flag.
+    Ths(Ths),
+    /// `$PASHR`: attitude (heading, roll, pitch) of a GNSS/INS unit.
+    Pashr(Pashr),
     /// `--ZDA`.
     Zda(Zda),
     /// `$PTNL,AVR`.
@@ -308,6 +313,8 @@ impl Sentence {
             Sentence::Gga(_) => "GGA",
             Sentence::Rmc(_) => "RMC",
             Sentence::Hdt(_) => "HDT",
+            Sentence::Ths(_) => "THS",
+            Sentence::Pashr(_) => "PASHR",
             Sentence::Zda(_) => "ZDA",
             Sentence::Avr(_) => "AVR",
             Sentence::Ggk(_) => "GGK",
@@ -323,7 +330,8 @@ impl Sentence {
             Sentence::Zda(s) => s.time,
             Sentence::Avr(s) => s.time,
             Sentence::Ggk(s) => s.time,
-            Sentence::Hdt(_) | Sentence::Other { .. } => None,
+            Sentence::Pashr(s) => s.time,
+            Sentence::Hdt(_) | Sentence::Ths(_) | Sentence::Other { .. } => None,
         }
     }
 }
@@ -397,6 +405,9 @@ pub fn parse_sentence(line: &str) -> Result<Sentence, NmeaError> {
     if frame.address == "PTNL" {
         return trimble::parse_ptnl(&frame.fields);
     }
+    if frame.address == "PASHR" {
+        return attitude::parse_pashr(&frame.fields).map(Sentence::Pashr);
+    }
     if frame.address.len() != 5 || frame.address.starts_with('P') {
         return Err(NmeaError::Unsupported(clip(frame.address)));
     }
@@ -406,6 +417,7 @@ pub fn parse_sentence(line: &str) -> Result<Sentence, NmeaError> {
         "GGA" => parse_gga(talker, f).map(Sentence::Gga),
         "RMC" => parse_rmc(talker, f).map(Sentence::Rmc),
         "HDT" => parse_hdt(talker, f).map(Sentence::Hdt),
+        "THS" => attitude::parse_ths(talker, f).map(Sentence::Ths),
         "ZDA" => parse_zda(talker, f).map(Sentence::Zda),
         k if IGNORED.contains(&k) => Ok(Sentence::Other {
             talker: talker.to_string(),
@@ -710,7 +722,10 @@ fn opt_fmt(v: Option<f64>, decimals: usize) -> String {
 
 fn parse_gga(talker: &str, f: &[&str]) -> Result<Gga, NmeaError> {
     const S: &str = "GGA";
-    field_count(S, f, 14, 14)?;
+    // Receivers in the field end GGA early (no geoid separation, no differential age or
+    // station); gpsd reads such sentences, so missing trailing fields are read as empty.
+    field_count(S, f, 9, 14)?;
+    let f: Vec<&str> = (0..14).map(|i| f.get(i).copied().unwrap_or("")).collect();
     unit_field(S, "altitude unit", f[9])?;
     unit_field(S, "geoid separation unit", f[11])?;
     Ok(Gga {
@@ -1147,6 +1162,31 @@ mod tests {
             panic!("hdt");
         };
         assert_eq!(h.heading_deg, Some(270.0));
+    }
+
+    #[test]
+    fn gga_without_its_trailing_fields_is_read() {
+        // Up to the altitude (9 fields) and up to its unit (10): heights are then orthometric
+        // only, as such receivers send them.
+        for body in [
+            "GPGGA,120000,4500.0000,N,00700.0000,E,4,12,0.8,250.5",
+            "GPGGA,120000,4500.0000,N,00700.0000,E,4,12,0.8,250.5,M",
+            "GPGGA,120000,4500.0000,N,00700.0000,E,4,12,0.8,250.5,M,47.0,M",
+        ] {
+            let Ok(Sentence::Gga(g)) = parse_sentence(&frame(body)) else {
+                panic!("{body}");
+            };
+            assert_eq!((g.quality, g.alt_msl_m), (4, Some(250.5)), "{body}");
+            assert_eq!(g.dgps_station, None);
+        }
+        assert!(matches!(
+            parse_sentence(&frame("GPGGA,120000,4500.0000,N,00700.0000,E,4,12,0.8")),
+            Err(NmeaError::FieldCount { found: 8, .. })
+        ));
+        assert!(parse_sentence(&frame(
+            "GPGGA,120000,4500.0000,N,00700.0000,E,4,12,0.8,250.5,X"
+        ))
+        .is_err());
     }
 
     #[test]

@@ -497,11 +497,12 @@ pub fn robot_agent_bin() -> PathBuf {
     PathBuf::from("robot-agent")
 }
 
-struct Children(Vec<Child>);
+/// The demo's robot processes, each with what it is (`husky-1 world`).
+struct Children(Vec<(String, Child)>);
 
 impl Drop for Children {
     fn drop(&mut self) {
-        for c in &mut self.0 {
+        for (_, c) in &mut self.0 {
             let _ = c.kill();
             let _ = c.wait();
         }
@@ -529,6 +530,79 @@ async fn stop_signal() {
     }
     #[cfg(not(unix))]
     let _ = tokio::signal::ctrl_c().await;
+}
+
+/// One demo robot the way a real one runs: the simulated world serving its sensors as ROS 2
+/// topics on its own Zenoh endpoint (`robot-agent sim --serve-ros2`, the robot's "hardware"),
+/// and `robot-agent run` on those topics, connected to the station. The agent takes the world's
+/// datum so every robot maps in one frame, as robots sharing a site datum do.
+fn start_robot(
+    agent: &Path,
+    scenario: &Path,
+    robot: &str,
+    seed: u32,
+    start: &str,
+    (station_endpoint, pki): (&str, Option<&Path>),
+    children: &mut Children,
+) -> anyhow::Result<()> {
+    use std::io::BufRead;
+    let hw_port = std::net::TcpListener::bind("127.0.0.1:0")?
+        .local_addr()?
+        .port();
+    let hw_endpoint = format!("tcp/127.0.0.1:{hw_port}");
+    let spawn_err = || {
+        format!(
+            "start {} (build it with cargo build --release --bins)",
+            agent.display()
+        )
+    };
+    let mut world = Command::new(agent)
+        .arg("sim")
+        .arg("--scenario")
+        .arg(scenario)
+        .args([
+            "--serve-ros2",
+            "--listen",
+            &hw_endpoint,
+            "--seed",
+            &seed.to_string(),
+        ])
+        .arg(format!("--start={start}"))
+        // A station killed outright (SIGKILL, out of memory) never runs `Children`'s drop;
+        // its robots would go on simulating and publishing with nobody to stop them.
+        .arg("--exit-with-parent")
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .spawn()
+        .with_context(spawn_err)?;
+    // The world's first line names its datum; the rest (its truth, for tests) is drained.
+    let out = world.stdout.take().context("world stdout")?;
+    children.0.push((format!("{robot} world"), world));
+    let mut lines = std::io::BufReader::new(out).lines();
+    let first = lines
+        .next()
+        .context("the simulated world exited before it started")??;
+    std::thread::spawn(move || for _ in lines.map_while(Result::ok) {});
+    let datum = serde_json::from_str::<serde_json::Value>(&first)
+        .ok()
+        .and_then(|v| v["datum"].as_str().map(str::to_owned))
+        .with_context(|| format!("the world's first line names no datum: {first}"))?;
+    let mut run = Command::new(agent);
+    run.args(["run", "--robot", robot, "--connect", station_endpoint]);
+    if let Some(dir) = pki {
+        // The robot's certificate and rules on its link to the station; its "hardware" link
+        // stays plain on loopback.
+        run.arg("--pki").arg(dir);
+    }
+    let run = run
+        .args(["--ros2-connect", &hw_endpoint, "--heading", "ros2:heading"])
+        .args(["--datum", &datum, "--exit-with-parent"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .spawn()
+        .with_context(spawn_err)?;
+    children.0.push((format!("{robot} agent"), run));
+    Ok(())
 }
 
 /// Station plus simulated robots until Ctrl-C (or SIGTERM / SIGHUP).
@@ -584,35 +658,15 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
         let (i, robot) = (k + 1, id.to_string());
         // Distinct start poses: a row 4 m apart, all facing east.
         let start = format!("{},{},0", 0.0, (i as f64 - 1.0) * 4.0);
-        let mut cmd = Command::new(&agent);
-        cmd.arg("sim");
-        if let Some(dir) = &a.pki {
-            cmd.arg("--pki").arg(dir);
-        }
-        let child = cmd
-            .arg("--scenario")
-            .arg(&scenario)
-            .args([
-                "--robot",
-                &robot,
-                "--connect",
-                &endpoint,
-                "--seed",
-                &i.to_string(),
-            ])
-            .arg(format!("--start={start}"))
-            // A station killed outright (SIGKILL, out of memory) never runs `Children`'s drop;
-            // its robots would go on simulating and publishing with nobody to stop them.
-            .arg("--exit-with-parent")
-            .stdin(Stdio::null())
-            .spawn()
-            .with_context(|| {
-                format!(
-                    "start {} (build it with cargo build --release --bins)",
-                    agent.display()
-                )
-            })?;
-        children.0.push(child);
+        start_robot(
+            &agent,
+            &scenario,
+            &robot,
+            i as u32,
+            &start,
+            (&endpoint, a.pki.as_deref()),
+            &mut children,
+        )?;
     }
     println!(
         "terranav demo: open http://{addr}/  ({} simulated robots, zenoh {endpoint}{}; Ctrl-C to stop)",
@@ -625,14 +679,13 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
     );
     let mut watch = a.pki.as_deref().map(RegisterWatch::new);
     run_until_stopped(&mut running, &z, &mut watch, || {
-        for (i, c) in children.0.iter_mut().enumerate() {
-            if let Ok(Some(status)) = c.try_wait() {
-                eprintln!("robot husky-{} exited with {status}", i + 1);
+        children.0.retain_mut(|(name, c)| match c.try_wait() {
+            Ok(Some(status)) => {
+                eprintln!("robot {name} exited with {status}");
+                false
             }
-        }
-        children
-            .0
-            .retain_mut(|c| !matches!(c.try_wait(), Ok(Some(_))));
+            _ => true,
+        });
         false
     })
     .await;

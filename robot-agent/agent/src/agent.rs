@@ -145,7 +145,25 @@ impl Agent {
 
     /// Feeds one NMEA sentence; a bad one is counted and shown, never fatal.
     pub fn on_gnss(&mut self, s: &GnssSentence) {
-        let update = match self.localiser.on_gnss(s) {
+        let update = self.localiser.on_gnss(s);
+        self.after_gnss(s.t_s, update);
+    }
+
+    /// Feeds one fix a driver decoded (ROS `NavSatFix`, gpsd); a bad one is counted and shown.
+    pub fn on_gnss_fix(&mut self, f: &sensing::GnssFixSample) {
+        let update = self.localiser.on_gnss_fix(f);
+        self.after_gnss(f.t_s, update);
+    }
+
+    /// Feeds one true heading a driver decoded; a bad one is counted and shown.
+    pub fn on_gnss_heading(&mut self, h: &sensing::GnssHeadingSample) {
+        if let Err(e) = self.localiser.on_gnss_heading(h) {
+            self.last_error = Some(e);
+        }
+    }
+
+    fn after_gnss(&mut self, t_s: f64, update: Result<crate::localiser::GnssUpdate, String>) {
+        let update = match update {
             Ok(u) => u,
             Err(e) => {
                 self.last_error = Some(e);
@@ -156,7 +174,7 @@ impl Agent {
             self.terrain.follow_frame(&shift);
         }
         // Re-evaluate a GNSS goal with each new fix (methods.md §5).
-        if let (Some(fix), Some(pose)) = (self.localiser.fix(s.t_s), self.localiser.pose_now()) {
+        if let (Some(fix), Some(pose)) = (self.localiser.fix(t_s), self.localiser.pose_now()) {
             let freeze = self.localiser.gnss_config().goal_freeze_distance_m;
             if let Some(goal) = self.mission.nav_mut().goal_mut() {
                 if let Some(g) = goal.gnss.as_mut() {

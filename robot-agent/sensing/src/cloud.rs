@@ -91,3 +91,30 @@ pub struct GnssSentence {
     /// The sentence text, `$` to checksum (line ending optional).
     pub text: String,
 }
+
+/// One position fix as a driver decoded it (ROS 2 `NavSatFix`, a gpsd report) rather than as
+/// NMEA text.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct GnssFixSample {
+    /// Time, seconds (session clock).
+    pub t_s: f64,
+    /// Latitude, degrees north (WGS-84).
+    pub lat_deg: f64,
+    /// Longitude, degrees east.
+    pub lon_deg: f64,
+    /// Height above the WGS-84 ellipsoid, metres.
+    pub h_m: f64,
+    /// Quality in GGA terms (0 none, 1 GPS, 2 DGPS, 4 RTK fixed, 5 RTK float).
+    pub quality: u8,
+    /// Satellites used, when the source says (`NavSatFix` does not).
+    pub satellites: Option<u8>,
+}
+
+/// A true heading (dual-antenna receiver) as a driver decoded it.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct GnssHeadingSample {
+    /// Time, seconds (session clock).
+    pub t_s: f64,
+    /// Heading of base_link, degrees clockwise from true north.
+    pub heading_deg: f64,
+}

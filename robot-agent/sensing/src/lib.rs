@@ -14,4 +14,6 @@ pub mod ply;
 pub mod sequence;
 pub mod velodyne;
 
-pub use cloud::{GnssSentence, ImuSample, OdomSample, Point, Scan};
+pub use cloud::{
+    GnssFixSample, GnssHeadingSample, GnssSentence, ImuSample, OdomSample, Point, Scan,
+};

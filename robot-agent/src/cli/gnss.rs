@@ -137,6 +137,18 @@ fn to_json(line: usize, s: &Sentence) -> Decoded<'_> {
             d.talker = &h.talker;
             d.heading_deg = h.heading_deg;
         }
+        Sentence::Ths(h) => {
+            d.talker = &h.talker;
+            d.heading_deg = h.heading_deg;
+            d.mode = Some(h.mode.to_string());
+        }
+        Sentence::Pashr(p) => {
+            d.talker = "PASHR";
+            d.heading_deg = p.heading_deg;
+            d.roll_deg = p.roll_deg;
+            d.tilt_deg = p.pitch_deg;
+            d.quality = p.gnss_quality;
+        }
         Sentence::Zda(z) => {
             d.talker = &z.talker;
             d.date = z.date.map(|x| x.to_string());

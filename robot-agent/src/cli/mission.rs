@@ -73,7 +73,12 @@ impl MissionArgs {
     }
 }
 
-fn numbers(s: &str, what: &str, n: std::ops::RangeInclusive<usize>) -> anyhow::Result<Vec<f64>> {
+/// Parses `A,B,...` numbers (`what` names the flag in errors), expecting a count within `n`.
+pub fn numbers(
+    s: &str,
+    what: &str,
+    n: std::ops::RangeInclusive<usize>,
+) -> anyhow::Result<Vec<f64>> {
     let v: Result<Vec<f64>, _> = s.split(',').map(|t| t.trim().parse::<f64>()).collect();
     let v = v.with_context(|| format!("{what}: {s:?} is not a comma-separated list of numbers"))?;
     anyhow::ensure!(
@@ -219,7 +224,7 @@ fn bus_config(args: &MissionArgs, robot: &RobotId) -> anyhow::Result<BusConfig> 
 
 /// Raises `stop` once this process's parent has exited (Unix: the process is handed to another
 /// parent then). Checked twice a second on its own thread.
-fn watch_parent(stop: Arc<AtomicBool>) {
+pub fn watch_parent(stop: Arc<AtomicBool>) {
     #[cfg(unix)]
     {
         let parent = std::os::unix::process::parent_id();

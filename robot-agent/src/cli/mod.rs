@@ -7,5 +7,6 @@ pub mod lidar;
 pub mod map;
 pub mod mission;
 pub mod plan;
+pub mod run;
 pub mod sim;
 pub mod slam;

@@ -45,6 +45,32 @@ pub struct SimArgs {
     /// Simulation step, seconds.
     #[arg(long, default_value_t = 0.02)]
     pub dt: f64,
+    /// Serve the world as a robot's hardware: publish its sensors as ROS 2 topics over Zenoh and
+    /// drive it by `cmd_vel` (no agent; run `robot-agent run` against it).
+    #[arg(long)]
+    pub serve_ros2: bool,
+    /// `--serve-ros2`: key form, `bridge` (zenoh-bridge-ros2dds) or `rmw` (rmw_zenoh).
+    #[arg(long, default_value = "bridge", value_name = "FORM")]
+    pub ros2_keys: String,
+    /// `--serve-ros2`: namespace of the topics.
+    #[arg(long, default_value = "", value_name = "NS")]
+    pub ros2_namespace: String,
+    /// `--serve-ros2`: ROS_DOMAIN_ID (rmw form).
+    #[arg(long, default_value_t = 0, value_name = "ID")]
+    pub ros2_domain_id: u32,
+    /// `--serve-ros2`: Zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7450 (as a bridge does).
+    #[arg(long, value_name = "ENDPOINT")]
+    pub listen: Vec<String>,
+    /// `--serve-ros2`: also publish the depth camera (`depth/points`).
+    #[arg(long)]
+    pub depth: bool,
+    /// `--serve-ros2`: hold a sensor silent, `STREAM@FROM_S+FOR_S` (lidar, depth, odom, imu,
+    /// gnss), e.g. `lidar@20+2`; repeatable.
+    #[arg(long, value_name = "SPEC")]
+    pub silence: Vec<crate::run::world::Silence>,
+    /// `--serve-ros2`: period of the simulator's truth lines on stdout, seconds.
+    #[arg(long, default_value_t = 1.0, value_name = "S")]
+    pub truth_period_s: f64,
     /// Missions and the live robot (`--goal`, `--goal-gnss`, `--teach-repeat`, `--robot`, `--connect`).
     #[command(flatten)]
     pub mission: super::mission::MissionArgs,
@@ -89,6 +115,9 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
     if let Some(SimTool::Render(r)) = &args.tool {
         return run_render(r);
     }
+    if args.serve_ros2 {
+        return run_world(&args);
+    }
     if args.mission.is_mission() || !args.headless {
         let path = args
             .scenario
@@ -106,6 +135,75 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
         return super::mission::run_headless(&scenario, &args.mission, args.seed);
     }
     run_headless(&args)
+}
+
+/// `--serve-ros2`: the world as hardware until SIGINT/SIGTERM.
+fn run_world(args: &SimArgs) -> anyhow::Result<()> {
+    use crate::run::world::{serve_world, WorldOptions};
+    anyhow::ensure!(
+        !args.headless && !args.mission.is_mission(),
+        "--serve-ros2 runs the world live; missions come from `robot-agent run` against it"
+    );
+    let path = args
+        .scenario
+        .as_ref()
+        .context("--scenario FILE is required")?;
+    anyhow::ensure!(
+        args.truth_period_s.is_finite() && args.truth_period_s >= 0.01,
+        "--truth-period-s must be at least 0.01"
+    );
+    let scenario = sim::Scenario::load(path)?;
+    let dir = args
+        .mission
+        .config_dir
+        .clone()
+        .unwrap_or_else(crate::config::default_config_dir);
+    let cfg = crate::config::load_agent_config(&dir)
+        .with_context(|| format!("loading configuration from {}", dir.display()))?;
+    let mut sim_cfg = sim::SimConfig {
+        seed: args.seed,
+        robot: cfg.profile,
+        depth: sim::DepthConfig {
+            enabled: args.depth,
+            ..Default::default()
+        },
+        ..sim::SimConfig::default()
+    };
+    if let Some(s) = &args.mission.start {
+        let v = super::mission::numbers(s, "--start", 3..=3)?;
+        sim_cfg.start = Some(common::geom::Pose2::new(v[0], v[1], v[2].to_radians()));
+    }
+    let form = args
+        .ros2_keys
+        .parse()
+        .map_err(|e: String| anyhow::anyhow!("--ros2-keys: {e}"))?;
+    let zenoh = crate::bus::ZenohSettings {
+        file: args.mission.zenoh.clone(),
+        connect: args.mission.connect.iter().cloned().collect(),
+        listen: args.listen.clone(),
+        ..Default::default()
+    };
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    super::run::stop_on_signals(stop.clone())?;
+    if args.mission.exit_with_parent {
+        super::mission::watch_parent(stop.clone());
+    }
+    serve_world(
+        &scenario,
+        WorldOptions {
+            sim: sim_cfg,
+            graph: io::ros2::Ros2Graph {
+                form,
+                domain_id: args.ros2_domain_id,
+                namespace: args.ros2_namespace.clone(),
+            },
+            zenoh,
+            topics: Default::default(),
+            silences: args.silence.clone(),
+            truth_period_s: args.truth_period_s,
+        },
+        stop,
+    )
 }
 
 /// How the headless run is driven.

@@ -4,9 +4,14 @@
 //! The simulator is the robot here: the agent only sees its sensor outputs (scans, odometry,
 //! NMEA), never its truth; the truth is used only to score the outcome.
 
+pub mod convert;
+pub mod gnss_sources;
+pub mod io_config;
 pub mod live;
 pub mod map_eval;
 pub mod robot;
+pub mod ros2;
+pub mod world;
 
 use agent::command::{Command, CommandKind, Direction, GoalTarget};
 use agent::mission::{Mode, Phase};

@@ -59,7 +59,7 @@ pub struct Watchdog {
     limits: SilenceLimits,
     expected: Vec<Topic>,
     started_s: Option<f64>,
-    last: [Option<f64>; 5],
+    last: [Option<f64>; Topic::COUNT],
 }
 
 impl Watchdog {
@@ -69,7 +69,7 @@ impl Watchdog {
             limits,
             expected: expected.to_vec(),
             started_s: None,
-            last: [None; 5],
+            last: [None; Topic::COUNT],
         }
     }
 
@@ -86,7 +86,7 @@ impl Watchdog {
             Topic::Depth => self.limits.lidar_timeout_s,
             Topic::Odom => self.limits.odom_timeout_s,
             Topic::Imu => self.limits.imu_timeout_s,
-            Topic::Gnss => self.limits.gnss_timeout_s,
+            Topic::Gnss | Topic::Heading => self.limits.gnss_timeout_s,
         }
     }
 

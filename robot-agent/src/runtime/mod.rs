@@ -14,7 +14,7 @@ pub mod stamps;
 
 use agent::{Agent, AgentConfig, Cmd, Identity};
 use faults::{Fault, SilenceLimits, Watchdog};
-use sensing::{GnssSentence, ImuSample, OdomSample, Scan};
+use sensing::{GnssFixSample, GnssHeadingSample, GnssSentence, ImuSample, OdomSample, Scan};
 use serde::Serialize;
 use stamps::{StampFault, StampGate, StampLimits, Topic};
 
@@ -31,6 +31,10 @@ pub enum Input {
     Imu(ImuSample),
     /// One NMEA sentence.
     Gnss(GnssSentence),
+    /// A fix a driver decoded (ROS `NavSatFix`, gpsd).
+    Fix(GnssFixSample),
+    /// A true heading from its own stream.
+    Heading(GnssHeadingSample),
 }
 
 impl Input {
@@ -41,7 +45,8 @@ impl Input {
             Input::Depth(_) => Topic::Depth,
             Input::Odom(_) => Topic::Odom,
             Input::Imu(_) => Topic::Imu,
-            Input::Gnss(_) => Topic::Gnss,
+            Input::Gnss(_) | Input::Fix(_) => Topic::Gnss,
+            Input::Heading(_) => Topic::Heading,
         }
     }
 
@@ -52,6 +57,8 @@ impl Input {
             Input::Odom(o) => o.t_s,
             Input::Imu(i) => i.t_s,
             Input::Gnss(g) => g.t_s,
+            Input::Fix(f) => f.t_s,
+            Input::Heading(h) => h.t_s,
         }
     }
 
@@ -61,6 +68,8 @@ impl Input {
             Input::Odom(o) => o.t_s -= by_s,
             Input::Imu(i) => i.t_s -= by_s,
             Input::Gnss(g) => g.t_s -= by_s,
+            Input::Fix(f) => f.t_s -= by_s,
+            Input::Heading(h) => h.t_s -= by_s,
         }
     }
 }
@@ -105,8 +114,8 @@ pub struct Runtime {
     gate: StampGate,
     watchdog: Watchdog,
     t0_s: f64,
-    accepted: [u64; 5],
-    undecodable: [u64; 5],
+    accepted: [u64; Topic::COUNT],
+    undecodable: [u64; Topic::COUNT],
     slam_fallbacks: u64,
     next_control_s: f64,
     cmd: Cmd,
@@ -151,8 +160,8 @@ impl Runtime {
             gate: StampGate::new(limits.stamps),
             watchdog: Watchdog::new(limits.silence, inputs),
             t0_s,
-            accepted: [0; 5],
-            undecodable: [0; 5],
+            accepted: [0; Topic::COUNT],
+            undecodable: [0; Topic::COUNT],
             slam_fallbacks: 0,
             next_control_s: 0.0,
             cmd: Cmd::default(),
@@ -211,6 +220,8 @@ impl Runtime {
             Input::Odom(o) => self.agent.on_odom(*o),
             Input::Imu(i) => self.agent.on_imu(i),
             Input::Gnss(g) => self.agent.on_gnss(g),
+            Input::Fix(f) => self.agent.on_gnss_fix(f),
+            Input::Heading(h) => self.agent.on_gnss_heading(h),
         }
         Admitted::Yes { scan }
     }
@@ -249,7 +260,7 @@ impl Runtime {
 
     /// The counts so far.
     pub fn counts(&self) -> RuntimeCounts {
-        let per_topic = |a: &[u64; 5]| {
+        let per_topic = |a: &[u64; Topic::COUNT]| {
             Topic::ALL
                 .iter()
                 .filter(|t| a[**t as usize] > 0)

@@ -20,17 +20,23 @@ pub enum Topic {
     Imu,
     /// GNSS (NMEA sentences or fixes).
     Gnss,
+    /// A true heading on its own stream (a ROS heading topic; NMEA headings come with `Gnss`).
+    Heading,
 }
 
 impl Topic {
     /// Every topic, in a fixed order.
-    pub const ALL: [Topic; 5] = [
+    pub const ALL: [Topic; Topic::COUNT] = [
         Topic::Lidar,
         Topic::Depth,
         Topic::Odom,
         Topic::Imu,
         Topic::Gnss,
+        Topic::Heading,
     ];
+
+    /// How many topics there are.
+    pub const COUNT: usize = 6;
 
     fn index(self) -> usize {
         self as usize
@@ -38,7 +44,7 @@ impl Topic {
 
     /// Several messages of this topic may share one stamp (a GNSS epoch's GGA and heading).
     fn stamps_may_repeat(self) -> bool {
-        self == Topic::Gnss
+        matches!(self, Topic::Gnss | Topic::Heading)
     }
 }
 
@@ -50,6 +56,7 @@ impl std::fmt::Display for Topic {
             Topic::Odom => "odom",
             Topic::Imu => "imu",
             Topic::Gnss => "gnss",
+            Topic::Heading => "heading",
         })
     }
 }
@@ -114,9 +121,9 @@ pub struct StampCounts {
 #[derive(Clone, Debug)]
 pub struct StampGate {
     limits: StampLimits,
-    last: [Option<f64>; 5],
+    last: [Option<f64>; Topic::COUNT],
     newest: Option<f64>,
-    refused: [[u64; 5]; 5],
+    refused: [[u64; 5]; Topic::COUNT],
 }
 
 impl StampGate {
@@ -124,9 +131,9 @@ impl StampGate {
     pub fn new(limits: StampLimits) -> Self {
         Self {
             limits,
-            last: [None; 5],
+            last: [None; Topic::COUNT],
             newest: None,
-            refused: [[0; 5]; 5],
+            refused: [[0; 5]; Topic::COUNT],
         }
     }
 

@@ -79,8 +79,8 @@ pub struct Fix {
     pub lla: Datum,
     /// GGA quality.
     pub quality: u8,
-    /// Satellites used.
-    pub satellites: u8,
+    /// Satellites used (`None`: the source does not say, as a ROS `NavSatFix`).
+    pub satellites: Option<u8>,
 }
 
 /// Tracks fixes and the dual-antenna heading from a stream of sentences.
@@ -113,7 +113,11 @@ impl GnssTracker {
         match parse_sentence(text) {
             Ok(Sentence::Gga(g)) => {
                 if g.has_fix() {
-                    if let (Some(lat), Some(lon), Some(h)) = (g.lat_deg, g.lon_deg, g.alt_hae_m()) {
+                    // A GGA cut short before the geoid separation gives only the height above
+                    // the geoid: within a session that is a constant offset, which the frame
+                    // (ENU at a datum) does not see.
+                    let h = g.alt_hae_m().or(g.alt_msl_m);
+                    if let (Some(lat), Some(lon), Some(h)) = (g.lat_deg, g.lon_deg, h) {
                         self.fix = Some(Fix {
                             t_s,
                             lla: Datum {
@@ -122,7 +126,7 @@ impl GnssTracker {
                                 h_m: h,
                             },
                             quality: g.quality,
-                            satellites: g.satellites.unwrap_or(0),
+                            satellites: Some(g.satellites.unwrap_or(0)),
                         });
                     }
                 }
@@ -145,6 +149,22 @@ impl GnssTracker {
                 }
                 Ok(())
             }
+            Ok(Sentence::Ths(h)) => {
+                if let Some(yaw) = h.heading_deg {
+                    self.heading = Some((t_s, yaw));
+                }
+                Ok(())
+            }
+            Ok(Sentence::Pashr(p)) => {
+                if let Some(yaw) = p.usable_heading_deg() {
+                    self.heading = Some((t_s, yaw));
+                    // PASHR's pitch is the body's, nose up: the tilt of a fore-aft baseline.
+                    if let Some(pitch) = p.pitch_deg {
+                        self.tilt = Some((t_s, pitch));
+                    }
+                }
+                Ok(())
+            }
             Ok(_) => Ok(()),
             Err(e) => {
                 self.bad_sentences += 1;
@@ -152,6 +172,51 @@ impl GnssTracker {
                 Err(e)
             }
         }
+    }
+
+    /// Takes a fix a driver decoded (ROS `NavSatFix`, gpsd); one without a position only ages
+    /// the last. `Err` for a non-finite or out-of-range position (counted like a bad sentence).
+    pub fn on_fix(&mut self, f: &sensing::GnssFixSample) -> Result<(), String> {
+        if f.quality == 0 {
+            return Ok(());
+        }
+        let valid = f.lat_deg.is_finite()
+            && f.lon_deg.is_finite()
+            && f.h_m.is_finite()
+            && f.lat_deg.abs() <= 90.0
+            && f.lon_deg.abs() <= 180.0;
+        if !valid {
+            self.bad_sentences += 1;
+            let e = format!(
+                "GNSS: fix ({}, {}, {}) is not a position",
+                f.lat_deg, f.lon_deg, f.h_m
+            );
+            self.last_error = Some(e.clone());
+            return Err(e);
+        }
+        self.fix = Some(Fix {
+            t_s: f.t_s,
+            lla: Datum {
+                lat_deg: f.lat_deg,
+                lon_deg: f.lon_deg,
+                h_m: f.h_m,
+            },
+            quality: f.quality,
+            satellites: f.satellites,
+        });
+        Ok(())
+    }
+
+    /// Takes a true heading a driver decoded (degrees clockwise from north).
+    pub fn on_heading(&mut self, h: &sensing::GnssHeadingSample) -> Result<(), String> {
+        if !h.heading_deg.is_finite() {
+            self.bad_sentences += 1;
+            let e = "GNSS: heading is not a number".to_string();
+            self.last_error = Some(e.clone());
+            return Err(e);
+        }
+        self.heading = Some((h.t_s, h.heading_deg.rem_euclid(360.0)));
+        Ok(())
     }
 
     /// The latest fix if it is fresh at `t_s`.
@@ -188,7 +253,8 @@ impl GnssTracker {
     pub fn can_anchor(&self, t_s: f64) -> bool {
         self.fix(t_s).is_some_and(|f| {
             f.quality == common::geo::nmea::QUALITY_RTK_FIXED
-                && f.satellites >= self.cfg.min_satellites_anchor
+                && f.satellites
+                    .is_none_or(|n| n >= self.cfg.min_satellites_anchor)
         }) && self.yaw_enu_rad(t_s).is_some()
     }
 
@@ -362,7 +428,7 @@ mod tests {
             t_s: 0.0,
             lla: datum,
             quality: 4,
-            satellites: 12,
+            satellites: Some(12),
         };
         g.refresh((1.0, 0.0), &fix, 5.0);
         assert!((g.goal_map.0 - 31.0).abs() < 1e-3 && (g.goal_map.1 - 40.0).abs() < 1e-3);

@@ -259,6 +259,21 @@ impl Localiser {
         })
     }
 
+    /// Feeds one fix a driver decoded (`NavSatFix`, gpsd), as a GGA sentence would be.
+    pub fn on_gnss_fix(&mut self, f: &sensing::GnssFixSample) -> Result<GnssUpdate, String> {
+        self.gnss.on_fix(f)?;
+        let new_fix = self.gnss.fix(f.t_s).filter(|x| x.t_s == f.t_s);
+        Ok(GnssUpdate {
+            shift: self.fuse_gnss(f.t_s),
+            new_fix,
+        })
+    }
+
+    /// Feeds one true heading a driver decoded.
+    pub fn on_gnss_heading(&mut self, h: &sensing::GnssHeadingSample) -> Result<(), String> {
+        self.gnss.on_heading(h)
+    }
+
     /// GNSS-aided localisation: each fresh RTK fixed fix pulls the frame's anchor a little
     /// towards where GNSS puts the robot ([`fusion::correction`]).
     fn fuse_gnss(&mut self, t_s: f64) -> Option<FrameShift> {

@@ -14,7 +14,7 @@ pub struct GnssStats {
     pub sentences: u64,
     /// Fixes produced (GGA).
     pub fixes: u64,
-    /// Headings produced (HDT).
+    /// Headings produced (HDT, THS, PASHR).
     pub headings: u64,
     /// Refused lines by reason (the parser's error, without the line's own values).
     pub refused: BTreeMap<String, u64>,
@@ -27,7 +27,7 @@ impl GnssStats {
     }
 }
 
-/// Turns NMEA lines into fixes (from GGA) and headings (from HDT); other valid sentences are
+/// Turns NMEA lines into fixes (from GGA) and headings (from HDT, THS, PASHR); other valid sentences are
 /// counted and skipped.
 #[derive(Debug, Default)]
 pub struct NmeaDecoder {
@@ -79,13 +79,19 @@ impl NmeaDecoder {
                     stamp_s: recv_s,
                     lat_deg: g.lat_deg.unwrap_or(f64::NAN),
                     lon_deg: g.lon_deg.unwrap_or(f64::NAN),
-                    alt_m: g.alt_hae_m().unwrap_or(f64::NAN),
+                    // Without the geoid separation only the orthometric height is known.
+                    alt_m: g.alt_hae_m().or(g.alt_msl_m).unwrap_or(f64::NAN),
                     status,
                     covariance_m2: None,
                 }))
             }
-            Sentence::Hdt(h) => {
-                let heading_deg = h.heading_deg?;
+            Sentence::Hdt(_) | Sentence::Ths(_) | Sentence::Pashr(_) => {
+                let heading_deg = match sentence {
+                    Sentence::Hdt(h) => h.heading_deg,
+                    Sentence::Ths(h) => h.heading_deg,
+                    Sentence::Pashr(p) => p.usable_heading_deg(),
+                    _ => None,
+                }?;
                 self.stats.headings += 1;
                 Some(GnssEvent::Heading(Heading {
                     stamp_s: recv_s,
@@ -116,10 +122,19 @@ mod tests {
             panic!("no heading")
         };
         assert_eq!(h.heading_deg, 274.07);
+        let Some(GnssEvent::Heading(h)) = d.feed(&frame("GNTHS,12.5,A"), 11.5) else {
+            panic!("no THS heading")
+        };
+        assert_eq!(h.heading_deg, 12.5);
+        let pashr = frame("PASHR,085335.000,224.19,T,-01.26,+00.83,+00.00,0.1,0.1,0.2,2,1");
+        let Some(GnssEvent::Heading(h)) = d.feed(&pashr, 11.6) else {
+            panic!("no PASHR heading")
+        };
+        assert_eq!(h.heading_deg, 224.19);
         assert!(d.feed("$GPGGA,garbage*00", 12.0).is_none());
         assert!(d.feed("hello", 12.0).is_none());
         assert!(d.feed(&frame("GPVTG,,T,,M,0.0,N,0.0,K,A"), 12.0).is_none());
-        assert_eq!(d.stats().sentences, 3);
+        assert_eq!(d.stats().sentences, 5);
         assert_eq!(d.stats().refused_total(), 2);
     }
 }

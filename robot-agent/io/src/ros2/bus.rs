@@ -78,8 +78,8 @@ impl<T> Subscription<T> {
     }
 }
 
-/// Publishes `geometry_msgs/msg/Twist` on one topic.
-pub struct TwistPublisher {
+/// Publishes CDR samples of one type on one topic (with rmw_zenoh's attachment in that form).
+pub struct Ros2Publisher {
     publisher: Publisher<'static>,
     form: KeyForm,
     gid: [u8; 16],
@@ -87,11 +87,10 @@ pub struct TwistPublisher {
     _token: Option<LivelinessToken>,
 }
 
-impl TwistPublisher {
-    /// Sends one command; `now_unix_ns` is the send time for the rmw attachment (the caller owns
-    /// the clock).
-    pub async fn put(&self, t: &Twist, now_unix_ns: i64) -> Result<(), Ros2Error> {
-        let payload = cdr::encode_twist(t);
+impl Ros2Publisher {
+    /// Sends one encoded sample (`cdr::encode_*`); `now_unix_ns` is the send time for the rmw
+    /// attachment (the caller owns the clock).
+    pub async fn put_cdr(&self, payload: Vec<u8>, now_unix_ns: i64) -> Result<(), Ros2Error> {
         let put = self.publisher.put(payload);
         match self.form {
             KeyForm::Bridge => put.await.map_err(zerr),
@@ -109,6 +108,22 @@ impl TwistPublisher {
     /// The Zenoh key published on.
     pub fn key(&self) -> String {
         self.publisher.key_expr().to_string()
+    }
+}
+
+/// Publishes `geometry_msgs/msg/Twist` on one topic.
+pub struct TwistPublisher(Ros2Publisher);
+
+impl TwistPublisher {
+    /// Sends one command; `now_unix_ns` is the send time for the rmw attachment (the caller owns
+    /// the clock).
+    pub async fn put(&self, t: &Twist, now_unix_ns: i64) -> Result<(), Ros2Error> {
+        self.0.put_cdr(cdr::encode_twist(t), now_unix_ns).await
+    }
+
+    /// The Zenoh key published on.
+    pub fn key(&self) -> String {
+        self.0.key()
     }
 }
 
@@ -217,23 +232,28 @@ impl Ros2Bus {
         })
     }
 
-    /// Declares the `cmd_vel` publisher on `topic`.
-    pub async fn twist_publisher(&self, topic: &str) -> Result<TwistPublisher, Ros2Error> {
+    /// Declares a publisher of `ty` on `topic`.
+    pub async fn publisher(&self, topic: &str, ty: &RosType) -> Result<Ros2Publisher, Ros2Error> {
         let publisher = self
             .session
-            .declare_publisher(self.graph.publish_key(topic, &TWIST))
+            .declare_publisher(self.graph.publish_key(topic, ty))
             .await
             .map_err(zerr)?;
-        let (token, gid) = match self.token(topic, &TWIST, true).await? {
+        let (token, gid) = match self.token(topic, ty, true).await? {
             Some((t, key)) => (Some(t), gid_of(&key)),
             None => (None, gid_of(publisher.key_expr().as_ref())),
         };
-        Ok(TwistPublisher {
+        Ok(Ros2Publisher {
             publisher,
             form: self.graph.form,
             gid,
             sequence: AtomicU64::new(0),
             _token: token,
         })
+    }
+
+    /// Declares the `cmd_vel` publisher on `topic`.
+    pub async fn twist_publisher(&self, topic: &str) -> Result<TwistPublisher, Ros2Error> {
+        Ok(TwistPublisher(self.publisher(topic, &TWIST).await?))
     }
 }

@@ -8,5 +8,5 @@ mod bus;
 pub mod keys;
 
 pub use attachment::Attachment;
-pub use bus::{Ros2Bus, Ros2Error, Subscription, TopicStats, TwistPublisher};
+pub use bus::{Ros2Bus, Ros2Error, Ros2Publisher, Subscription, TopicStats, TwistPublisher};
 pub use keys::{KeyForm, Ros2Graph, RosType};
