@@ -35,10 +35,6 @@ pub struct MissionArgs {
     /// tls/STATION:7447; default tls/127.0.0.1:7447). Plain endpoints off loopback are refused.
     #[arg(long, value_name = "ENDPOINT")]
     pub connect: Option<String>,
-    /// Zenoh endpoint to listen on (live mode), so stations can link to the robot directly
-    /// (with --pki: tls/ADDR:PORT). Default: a loopback port, or none with --pki.
-    #[arg(long, value_name = "ENDPOINT")]
-    pub listen: Option<String>,
     /// The robot's certificates (live mode): the folder `operator-station pki issue --robot ID`
     /// wrote (PKI/robots/ID/, copied to the robot), or the fleet's PKI folder itself. Turns on
     /// TLS with mutual authentication and the robot's access rules.
@@ -178,12 +174,13 @@ pub fn run_live(
     scenario: &sim::Scenario,
     scenario_name: &str,
     args: &MissionArgs,
+    listen: &[String],
     seed: u64,
 ) -> anyhow::Result<()> {
     let cfg = agent_config(args)?;
     let opts = options(args, seed)?;
     let robot = RobotId::new(args.robot.clone()).map_err(|e| anyhow::anyhow!("--robot: {e}"))?;
-    let bus = bus_config(args, &robot)?;
+    let bus = bus_config(args, listen, &robot)?;
     let stop = Arc::new(AtomicBool::new(false));
     if args.exit_with_parent {
         watch_parent(stop.clone());
@@ -193,13 +190,15 @@ pub fn run_live(
 
 /// The live robot's bus: endpoints, certificates; checked here, before the world is built, so a
 /// refused endpoint is reported at once.
-fn bus_config(args: &MissionArgs, robot: &RobotId) -> anyhow::Result<BusConfig> {
+/// `listen`: `sim --listen`, so stations can link to the robot directly (with --pki: tls/...);
+/// default a loopback port, or none with --pki.
+fn bus_config(args: &MissionArgs, listen: &[String], robot: &RobotId) -> anyhow::Result<BusConfig> {
     let mut bus = BusConfig::new(robot.clone());
     let tls = match &args.pki {
         Some(dir) => Some(secure::robot_files(dir, robot)?),
         None => None,
     };
-    if args.zenoh.is_some() || args.connect.is_some() || args.listen.is_some() || tls.is_some() {
+    if args.zenoh.is_some() || args.connect.is_some() || !listen.is_empty() || tls.is_some() {
         let default_connect = match (&args.zenoh, &tls) {
             (None, Some(_)) => vec![format!(
                 "tls/{}",
@@ -213,7 +212,7 @@ fn bus_config(args: &MissionArgs, robot: &RobotId) -> anyhow::Result<BusConfig> 
         bus.zenoh = ZenohSettings {
             file: args.zenoh.clone(),
             connect: args.connect.clone().map_or(default_connect, |c| vec![c]),
-            listen: args.listen.iter().cloned().collect(),
+            listen: listen.to_vec(),
             tls,
             ..ZenohSettings::default()
         };
