@@ -36,6 +36,8 @@ if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
     done
 fi
 python3 -c 'import rosbags' 2>/dev/null || { say "installing rosbags (pip)"; python3 -m pip install -q rosbags || pip install -q rosbags; }
+# tests/record.rs reads recordings with an independent MCAP reader and validates their messages.
+python3 -c 'import mcap, jsonschema' 2>/dev/null || { say "installing mcap, jsonschema (pip)"; python3 -m pip install -q mcap jsonschema || pip install -q mcap jsonschema; }
 
 say "building binaries (release)"
 cargo build --release --workspace --bins

@@ -157,3 +157,95 @@ fn a_terminated_demo_stops_its_robots_and_exits_cleanly() {
         );
     }
 }
+
+/// The station binary under test (`TERRANAV_OPS_BASELINE=DIR`: an older build's, to show the
+/// checks failing before the fix).
+fn station_bin() -> std::path::PathBuf {
+    match std::env::var_os("TERRANAV_OPS_BASELINE") {
+        Some(d) => std::path::PathBuf::from(d).join("operator-station"),
+        None => bin("operator-station"),
+    }
+}
+
+/// The demo prints its Zenoh endpoint and its database; on the default port `operator-station
+/// robots` finds its robot without options (it printed nothing: the demo picked a random port);
+/// and a temporary database folder is gone when the demo ends (it was left behind).
+#[test]
+fn the_demo_says_where_it_is_and_removes_its_temporary_folder() {
+    use std::io::{BufRead, BufReader};
+    if !have_proc() {
+        return;
+    }
+    let port = free_port();
+    let mut demo = KillOnDrop::spawn(
+        Command::new(station_bin())
+            .args(["demo", "--robots", "1", "--port", &port.to_string()])
+            .current_dir(workspace_root())
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null()),
+    )
+    .expect("start operator-station demo");
+    let out = demo.0.stdout.take().expect("stdout");
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for l in BufReader::new(out).lines().map_while(Result::ok) {
+            let _ = tx.send(l);
+        }
+    });
+    let mut text = String::new();
+    let t0 = Instant::now();
+    while !text.contains("database") && t0.elapsed() < Duration::from_secs(30) {
+        if let Ok(l) = rx.recv_timeout(Duration::from_millis(200)) {
+            text.push_str(&l);
+            text.push('\n');
+        }
+    }
+    println!("{text}");
+    let endpoint = text
+        .split_whitespace()
+        .find(|w| w.starts_with("tcp/127.0.0.1:"))
+        .map(|w| w.trim_end_matches([';', ')', ',']).to_string())
+        .expect("the demo prints its Zenoh endpoint");
+    let db = text
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("database "))
+        .map(|l| std::path::PathBuf::from(l.split(" (").next().unwrap_or(l).trim()))
+        .expect("the demo prints its database path");
+    assert!(db.exists(), "{} does not exist", db.display());
+    let default_port = endpoint == "tcp/127.0.0.1:7447";
+    if !default_port {
+        println!("port 7447 was taken on this machine: the demo chose {endpoint}");
+    }
+    // `robots` as the README gives it: no options on the default port.
+    let t0 = Instant::now();
+    let listed = loop {
+        let mut cmd = Command::new(station_bin());
+        cmd.args(["robots", "--wait-s", "1.5"]);
+        if !default_port {
+            cmd.args(["--connect", &endpoint]);
+        }
+        let o = cmd.output().expect("operator-station robots");
+        let s = String::from_utf8_lossy(&o.stdout).to_string();
+        if s.contains("\"husky-1\"") || t0.elapsed() > Duration::from_secs(30) {
+            break s;
+        }
+        std::thread::sleep(Duration::from_millis(500));
+    };
+    assert!(
+        listed.contains("\"husky-1\""),
+        "`operator-station robots` did not list the demo's robot: {listed:?}"
+    );
+    signal(demo.0.id(), "-TERM");
+    let t0 = Instant::now();
+    while demo.0.try_wait().expect("wait").is_none() {
+        assert!(t0.elapsed() < Duration::from_secs(20), "demo still runs");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let folder = db.parent().expect("db folder");
+    assert!(
+        !folder.exists(),
+        "the demo left its temporary folder {} behind",
+        folder.display()
+    );
+}

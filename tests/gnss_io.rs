@@ -1,6 +1,8 @@
 //! GNSS sources against real programs: Debian's gpsd reading a recorded receiver log over
 //! `tcp://` and serving it to our gpsd client (fixes compared with gpsd's own regression `.chk`
-//! file), and NMEA on a serial port (a pseudo-terminal pair made by socat).
+//! file) and to `robot-agent run --gnss gpsd:...` (the fixes the agent took, compared with the
+//! `.chk` files of all three logs), and NMEA on a serial port (a pseudo-terminal pair made by
+//! socat).
 //!
 //! Without gpsd or socat a test prints a notice and passes, except under CI=true (scripts/test.sh
 //! installs both), where it fails.
@@ -13,7 +15,11 @@ use std::time::Duration;
 use io::gnss::{GnssEvent, GpsdClient, LineSource, NmeaDecoder};
 use io::sample::FixStatus;
 use io::source::SourceSpec;
-use support::KillOnDrop;
+use serde_json::Value;
+use std::io::BufRead;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use support::{bin, workspace_root, KillOnDrop};
 use tokio::io::AsyncWriteExt;
 
 fn have(program: &str) -> bool {
@@ -184,6 +190,212 @@ fn iso(t: f64) -> String {
         rem / 1000 % 60,
         rem % 1000
     )
+}
+
+/// One positioned TPV of a `.chk`: what gpsd decoded from the receiver.
+#[derive(Clone, Debug)]
+struct ChkFix {
+    lat: f64,
+    lon: f64,
+    alt_hae: Option<f64>,
+    mode: u64,
+    /// gpsd's status (absent: a plain fix, 1).
+    status: u64,
+}
+
+fn chk_positions(text: &str) -> Vec<ChkFix> {
+    text.lines()
+        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+        .filter(|v| v["class"] == "TPV" && v["lat"].is_number() && v["mode"].as_u64() >= Some(2))
+        .map(|v| ChkFix {
+            lat: v["lat"].as_f64().unwrap(),
+            lon: v["lon"].as_f64().unwrap(),
+            alt_hae: v["altHAE"].as_f64(),
+            mode: v["mode"].as_u64().unwrap(),
+            status: v["status"].as_u64().unwrap_or(1),
+        })
+        .collect()
+}
+
+/// gpsd's TPV status from a GGA quality (how the agent reports its fixes).
+fn gpsd_status(quality: u64) -> u64 {
+    match quality {
+        2 => 2,
+        4 => 3,
+        5 => 4,
+        6 => 5,
+        _ => 1,
+    }
+}
+
+/// A TCP server sending `lines` over and over, 2 ms apart, to whoever connects (gpsd).
+fn nmea_feed(lines: Vec<String>, stop: Arc<AtomicBool>) -> u16 {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    std::thread::spawn(move || {
+        for conn in listener.incoming() {
+            let Ok(mut s) = conn else { return };
+            let (lines, stop) = (lines.clone(), stop.clone());
+            std::thread::spawn(move || {
+                while !stop.load(Ordering::Relaxed) {
+                    for l in &lines {
+                        if s.write_all(format!("{l}\r\n").as_bytes()).is_err()
+                            || stop.load(Ordering::Relaxed)
+                        {
+                            return;
+                        }
+                        std::thread::sleep(Duration::from_millis(2));
+                    }
+                }
+            });
+        }
+    });
+    port
+}
+
+/// gpsd reads `log` from a TCP feed; `robot-agent run --no-lidar --gnss gpsd:...
+/// --print-fixes` reads gpsd. Every fix the agent took is one of the `.chk`'s with the same
+/// position (1e-9 deg), height (1 mm), mode and status, and it took nine in ten of them.
+fn gpsd_run_matches_chk(dir: &std::path::Path, log: &str) {
+    let text = std::fs::read_to_string(dir.join(log)).unwrap();
+    let want = chk_positions(&std::fs::read_to_string(dir.join(format!("{log}.chk"))).unwrap());
+    assert!(!want.is_empty(), "{log}: no positioned TPV in the chk");
+    let lines: Vec<String> = text
+        .lines()
+        .filter(|l| l.starts_with('$'))
+        .map(str::to_owned)
+        .collect();
+    let stop = Arc::new(AtomicBool::new(false));
+    let feed_port = nmea_feed(lines, stop.clone());
+    let gpsd_port = support::free_port();
+    let tmp = tempfile::tempdir().unwrap();
+    let _gpsd = KillOnDrop::spawn(
+        Command::new("gpsd")
+            .args(["-N", "-n", "-G", "-S", &gpsd_port.to_string(), "-F"])
+            .arg(tmp.path().join("gpsd.sock"))
+            .arg(format!("tcp://127.0.0.1:{feed_port}"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null()),
+    )
+    .unwrap();
+    let run_log = tmp.path().join("run.log");
+    let mut run = KillOnDrop::spawn(
+        Command::new(bin("robot-agent"))
+            .current_dir(workspace_root())
+            .args([
+                "run",
+                "--robot",
+                "gps-1",
+                "--connect",
+                &format!("tcp/127.0.0.1:{}", support::free_port()),
+                "--no-lidar",
+                "--gnss",
+                &format!("gpsd:127.0.0.1:{gpsd_port}"),
+                "--odom",
+                "",
+                "--imu",
+                "",
+                "--print-fixes",
+            ])
+            .env("RUST_LOG", "info,zenoh=warn")
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&run_log).unwrap()),
+    )
+    .unwrap();
+    let out = run.0.stdout.take().unwrap();
+    let got: Arc<Mutex<Vec<Value>>> = Arc::default();
+    let sink = got.clone();
+    let reader = std::thread::spawn(move || {
+        let mut last = String::new();
+        for l in std::io::BufReader::new(out).lines().map_while(Result::ok) {
+            if let Ok(v) = serde_json::from_str::<Value>(&l) {
+                if v.get("fix").is_some() {
+                    sink.lock().unwrap().push(v["fix"].clone());
+                    continue;
+                }
+            }
+            last = l;
+        }
+        last
+    });
+    // Every fix taken must be in the chk; most of the chk must be taken.
+    let matches = |f: &Value, c: &ChkFix| {
+        (f["lat_deg"].as_f64().unwrap() - c.lat).abs() < 1e-9
+            && (f["lon_deg"].as_f64().unwrap() - c.lon).abs() < 1e-9
+    };
+    let need = want.len() * 9 / 10;
+    let covered = |got: &[Value]| {
+        want.iter()
+            .filter(|c| got.iter().any(|f| matches(f, c)))
+            .count()
+    };
+    let t0 = std::time::Instant::now();
+    while covered(&got.lock().unwrap()) < need && t0.elapsed() < Duration::from_secs(60) {
+        if let Ok(Some(s)) = run.0.try_wait() {
+            panic!("{log}: run exited {s}");
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let pid = run.0.id().to_string();
+    Command::new("kill").args(["-TERM", &pid]).status().unwrap();
+    let status = run.0.wait().unwrap();
+    stop.store(true, Ordering::Relaxed);
+    let summary: Value = serde_json::from_str(&reader.join().unwrap()).unwrap_or(Value::Null);
+    let got = got.lock().unwrap().clone();
+    let log_tail = std::fs::read_to_string(&run_log).unwrap_or_default();
+    assert!(
+        status.success(),
+        "{log}: run exited {status}
+{log_tail}"
+    );
+    let n_covered = covered(&got);
+    println!(
+        "{log}: the agent took {} fixes, covering {n_covered} of the chk's {} positioned TPVs; \
+         summary gnss {}",
+        got.len(),
+        want.len(),
+        summary["counts"]["gnss"]
+    );
+    assert!(
+        n_covered >= need,
+        "{log}: only {n_covered} of {} chk fixes taken
+{log_tail}",
+        want.len()
+    );
+    for f in &got {
+        let candidates: Vec<&ChkFix> = want.iter().filter(|c| matches(f, c)).collect();
+        assert!(!candidates.is_empty(), "{log}: fix {f} is not in the chk");
+        let h = f["h_m"].as_f64().unwrap();
+        let mode = if h.is_finite() { 3 } else { 2 };
+        let status = gpsd_status(f["quality"].as_u64().unwrap());
+        assert!(
+            candidates.iter().any(|c| c.mode == mode
+                && c.status == status
+                && c.alt_hae.is_none_or(|a| (a - h).abs() < 1e-3)),
+            "{log}: fix {f} (mode {mode}, status {status}) differs from the chk's {candidates:?}"
+        );
+    }
+    let taken = summary["counts"]["gnss"]["fixes"].as_u64().unwrap_or(0);
+    assert_eq!(taken, got.len() as u64, "{log}: summary {summary}");
+    assert_eq!(
+        summary["counts"]["undecodable"],
+        serde_json::json!([]),
+        "{log}: gpsd lines refused: {summary}"
+    );
+}
+
+#[test]
+fn gpsd_through_robot_agent_run_gives_the_chk_fixes() {
+    if !have("gpsd") {
+        return;
+    }
+    let Some(data) = support::shared_data("the gpsd run test") else {
+        return;
+    };
+    for log in ["nmea-rtk.log", "hemi.log", "cat-ms352.log"] {
+        gpsd_run_matches_chk(&data.join("gnss"), log);
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

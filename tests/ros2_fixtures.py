@@ -13,9 +13,14 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 TS = get_typestore(Stores.ROS2_JAZZY)
+# velodyne_msgs is not in rosbags' stores: its two definitions as the ROS 2 package has them.
+TS.register({
+    **get_types_from_msg("builtin_interfaces/Time stamp\nuint8[1206] data\n", "velodyne_msgs/msg/VelodynePacket"),
+    **get_types_from_msg("std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets\n", "velodyne_msgs/msg/VelodyneScan"),
+})
 T = TS.types
 TYPES = [
     "sensor_msgs/msg/PointCloud2",
@@ -25,6 +30,7 @@ TYPES = [
     "geometry_msgs/msg/Twist",
     "tf2_msgs/msg/TFMessage",
     "geometry_msgs/msg/QuaternionStamped",
+    "velodyne_msgs/msg/VelodyneScan",
 ]
 
 

@@ -221,6 +221,7 @@ fn rosbags_reads_what_we_encode() {
             alt_m: 40.0,
             status: FixStatus::Sbas,
             covariance_m2: None,
+            gga_quality: None,
         }),
     );
     put(

@@ -318,6 +318,28 @@ fn authorised_station_commands_a_secure_robot_and_a_replay_is_refused() {
     );
     assert!((x - 8.0).hypot(y) <= 0.5);
 
+    // A keep-out zone drawn at the station reaches the secure robot (the zone set is not a
+    // command, so it has its own rules on both sessions).
+    let datum = robot_entry(ports.http, "r1").unwrap()["datum_id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let fc = r#"{"type":"FeatureCollection","features":[{"type":"Feature","properties":{"kind":"keep_out","name":"pond"},"geometry":{"type":"Polygon","coordinates":[[[20,20],[24,20],[24,24],[20,24],[20,20]]]}}]}"#;
+    let (st, body) = post(
+        ports.http,
+        &format!("/api/zones?frame=map&datum_id={datum}"),
+        fc,
+    );
+    assert_eq!(st, 201, "{body}");
+    let zoned = wait_for(LIMIT, || {
+        robot_entry(ports.http, "r1").is_some_and(|r| r["status"]["zones_version"].as_u64() > Some(0))
+    });
+    assert!(
+        zoned,
+        "zones never reached the secure robot: {}",
+        robot_entry(ports.http, "r1").unwrap()["status"]
+    );
+
     // The operator stops it; the captured goal, sent again over the authorised link straight to
     // the robot, is refused and counted: the stopped robot stays stopped.
     let (st, _) = post(ports.http, "/api/robots/r1/stop", "{}");

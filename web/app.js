@@ -3,6 +3,11 @@
 // Plain ES module, no build step. See README.md for the contract with the station.
 
 import { enuToGeodetic, geodeticToEnu, hasGeodetic, formatLatLon, parsePair } from "./geo.js";
+import { robotColor } from "./ui/colors.js";
+import { initAlerts } from "./ui/alerts.js";
+import { initZones } from "./ui/zones.js";
+import { initMissions } from "./ui/missions.js";
+import { initBasemap } from "./ui/basemap.js";
 
 /* global L */
 
@@ -19,6 +24,13 @@ function withToken(url) {
 }
 
 class ApiError extends Error {}
+
+/** Request headers with the page's token. */
+function headers(extra = {}) {
+  const h = { Accept: "application/json", ...extra };
+  if (TOKEN) h.Authorization = "Bearer " + TOKEN;
+  return h;
+}
 
 /** JSON request to the station; throws ApiError with the station's `{"error"}` text on failure. */
 async function api(method, path, body) {
@@ -63,6 +75,12 @@ const OMEGA_MAX_RPS = 0.8;
 const STALE_WARN_MS = 1500;
 const STALE_BAD_MS = 5000;
 
+// The parts initialised at the end of this module (they need the map and the helpers below).
+let alerts = null;
+let zones = null;
+let missions = null;
+let basemap = null;
+
 const state = {
   robots: new Map(), // name -> RobotView
   datums: new Map(), // datum_id -> {datum_id, lat_deg, lon_deg, h_m, tiles, bounds_m}
@@ -78,8 +96,10 @@ const state = {
   sessions: [],
   trackLayers: new Map(), // session_id -> {layer, datum_id}
   wsUp: false,
+  stationDownSince: null, // local ms when the station stopped answering (null: it answers)
   fittedDatum: null,
   health: null,
+  mode: null, // "goal" | "zone" | "mission": what a map click does
 };
 
 /** Per-robot data and its map layers. */
@@ -105,7 +125,9 @@ function robotView(name) {
       pathLine: null,
       goalMarker: null,
       lastError: null,
-      lastErrorAt: 0,
+      iconKey: "",
+      card: null,
+      restAt: 0, // local time of the last REST refresh of this robot
     };
     state.robots.set(name, r);
   }
@@ -160,13 +182,16 @@ const readout = document.getElementById("readout");
 map.on("mousemove", (ev) => {
   const x = ev.latlng.lng;
   const y = ev.latlng.lat;
-  readout.textContent = `${fmtXY(x, y)} · ${latLonText(x, y)}` + (state.datumId ? ` · ${state.datumId}` : "");
+  // Two short lines: one long line ran under the scale bar on a small screen.
+  readout.textContent = `${fmtXY(x, y)}\n${latLonText(x, y)}` + (state.datumId ? ` · ${state.datumId}` : "");
 });
 
 let clickPopup = null;
 map.on("click", (ev) => {
   const x = ev.latlng.lng;
   const y = ev.latlng.lat;
+  // Drawing a zone or a mission: the click is theirs.
+  if (state.mode === "zone" || state.mode === "mission") return;
   if (state.goalMode) {
     // One click, one goal: a second stray click must not re-target the robot.
     setGoalMode(false);
@@ -278,6 +303,9 @@ function setDatum(datumId) {
   renderSessions();
   refreshTiles();
   maybeFit();
+  if (zones) zones.refresh();
+  if (missions) missions.onDatum();
+  if (basemap) basemap.update();
 }
 
 /** Picks the datum to draw: the operator's choice, else the selected robot's, else the first known. */
@@ -314,14 +342,20 @@ function fitDatum() {
 
 // ----- robots on the map ------------------------------------------------------------------------
 
+function iconKey(r) {
+  return `${r.name === state.selected}|${r.online && !state.stationDownSince}`;
+}
+
 function robotIcon(r) {
   const selected = r.name === state.selected;
+  const online = r.online && !state.stationDownSince;
+  r.iconKey = iconKey(r);
   return L.divIcon({
     className: "robot-icon",
     iconSize: [34, 34],
     iconAnchor: [17, 17],
     html:
-      `<div class="robot-marker${selected ? " selected" : ""}${r.online ? "" : " offline"}" data-robot="${esc(r.name)}">` +
+      `<div class="robot-marker${selected ? " selected" : ""}${online ? "" : " offline"}" data-robot="${esc(r.name)}" data-online="${online}" style="--robot: ${robotColor(r.name)}">` +
       `<svg viewBox="-17 -17 34 34" width="34" height="34"><g class="arrow">` +
       `<circle r="13" class="ring"/><path d="M 12 0 L -8 -8 L -4 0 L -8 8 Z" class="body"/></g></svg>` +
       `<span class="robot-label">${esc(r.name)}</span></div>`,
@@ -353,11 +387,15 @@ function redrawRobot(r) {
     r.marker.bindTooltip(() => robotTooltip(r), { direction: "top", offset: [0, -14] });
   } else {
     r.marker.setLatLng(pos);
+    // Online, offline and selection change the icon: a marker left grey after a restart
+    // told the operator an online robot was gone.
+    if (r.iconKey !== iconKey(r)) r.marker.setIcon(robotIcon(r));
   }
   setMarkerHeading(r);
+  const color = robotColor(r.name);
 
   if (!r.trailLine) {
-    r.trailLine = L.polyline([], { pane: "tracksPane", className: "robot-trail", interactive: false }).addTo(map);
+    r.trailLine = L.polyline([], { pane: "tracksPane", className: "robot-trail", color, interactive: false }).addTo(map);
   }
   r.trailLine.setLatLngs(r.trail.map(([x, y]) => ll(x, y)));
 
@@ -366,7 +404,7 @@ function redrawRobot(r) {
   if (r.path && r.path.length >= 2 && !over) {
     const pts = r.path.map(([x, y]) => ll(x, y));
     if (!r.pathLine) {
-      r.pathLine = L.polyline(pts, { pane: "pathsPane", className: "robot-path", interactive: false }).addTo(map);
+      r.pathLine = L.polyline(pts, { pane: "pathsPane", className: "robot-path", color, interactive: false }).addTo(map);
     } else {
       r.pathLine.setLatLngs(pts);
     }
@@ -375,18 +413,31 @@ function redrawRobot(r) {
     r.pathLine = null;
   }
 
+  // The goal stays on the map when there is no path to it (marked failed), so the operator
+  // sees where the robot gave up.
   const goal = r.status && r.status.goal_m && isActiveMission(r.status.mission) ? r.status.goal_m : null;
   if (goal) {
     const g = ll(goal[0], goal[1]);
+    const failed = r.status.mission === "NoPath";
+    const key = `${failed}`;
+    if (r.goalMarker && r.goalMarker.key !== key) {
+      r.goalMarker.remove();
+      r.goalMarker = null;
+    }
     if (!r.goalMarker) {
       r.goalMarker = L.marker(g, {
         pane: "pathsPane",
         keyboard: false,
-        icon: L.divIcon({ className: "goal-icon", iconSize: [22, 22], iconAnchor: [11, 11], html: `<div class="goal-marker" data-robot="${esc(r.name)}">⚑</div>` }),
+        icon: L.divIcon({
+          className: "goal-icon", iconSize: [22, 22], iconAnchor: [11, 11],
+          html: `<div class="goal-marker${failed ? " failed" : ""}" data-robot="${esc(r.name)}" data-state="${failed ? "no-path" : "active"}" style="--robot: ${robotColor(r.name)}">${failed ? "✖" : "⚑"}</div>`,
+        }),
       }).addTo(map);
+      r.goalMarker.key = key;
       r.goalMarker.bindTooltip(() => {
         const gm = r.status && r.status.goal_m;
-        return gm ? `${esc(r.name)} goal<br>${fmtXY(gm[0], gm[1])}<br>${esc(latLonText(gm[0], gm[1]))}` : "";
+        const why = r.status && r.status.mission === "NoPath" ? `<br><b>no path</b>: ${esc(r.status.reason)}` : "";
+        return gm ? `${esc(r.name)} goal<br>${fmtXY(gm[0], gm[1])}<br>${esc(latLonText(gm[0], gm[1]))}${why}` : "";
       });
     } else {
       r.goalMarker.setLatLng(g);
@@ -468,56 +519,130 @@ const MISSION_CLASS = {
   Idle: "muted", Planning: "info", Driving: "ok", Blocked: "warn", NoPath: "bad", Reached: "ok", Stopped: "bad", Paused: "warn",
 };
 
+/** One robot's card, built once: later renders only change its text and classes, so a click
+ * that lands between two renders still hits the card it was aimed at (the list used to be
+ * rebuilt ~3 times a second and lost about a third of the clicks). */
+function makeCard(name) {
+  const el = document.createElement("div");
+  el.className = "robot-card";
+  el.dataset.robot = name;
+  el.tabIndex = 0;
+  el.style.setProperty("--robot", robotColor(name));
+  el.innerHTML = `
+    <div class="robot-head">
+      <span class="dot" data-field="dot"></span>
+      <span class="swatch" title="this robot's colour on the map"></span>
+      <span class="robot-name">${esc(name)}</span>
+      <span class="muted small" data-field="seen"></span>
+      <span class="rec hidden" data-field="rec" title="recording a route">● REC</span>
+    </div>
+    <div class="kv"><span>state</span><span><b data-field="mission"></b> <span class="muted" data-field="reason"></span> <span class="muted" data-field="mode"></span></span></div>
+    <div data-field="run"></div>
+    <div class="details">
+      <div class="kv"><span>GNSS</span><span data-field="fix"></span></div>
+      <div class="kv"><span>SLAM</span><span data-field="slam"></span></div>
+      <div class="kv"><span>speed</span><span data-field="speed"></span></div>
+      <div class="kv" data-field="zone-row"><span>zone</span><span data-field="zone"></span></div>
+      <div class="kv" data-field="route-row"><span>route</span><span data-field="route"></span></div>
+      <div class="ages" data-field="ages"></div>
+      <div class="counters" data-field="counters"></div>
+    </div>
+    <div class="robot-error hidden" data-field="error" title="last error reported by the robot"></div>`;
+  return el;
+}
+
+function setText(card, field, text, cls) {
+  const e = card.querySelector(`[data-field="${field}"]`);
+  if (!e) return;
+  if (e.textContent !== text) e.textContent = text;
+  if (cls !== undefined && e.className !== cls) e.className = cls;
+}
+
+function setHtml(card, field, html) {
+  const e = card.querySelector(`[data-field="${field}"]`);
+  if (e && e.dataset.html !== html) {
+    e.innerHTML = html;
+    e.dataset.html = html;
+  }
+}
+
 function renderRobots() {
   const names = [...state.robots.keys()].sort();
-  document.getElementById("robot-count").textContent = names.length ? `(${names.filter((n) => state.robots.get(n).online).length}/${names.length} online)` : "";
+  const down = state.stationDownSince !== null;
+  document.getElementById("robot-count").textContent = names.length
+    ? down ? `(${names.length}, state unknown)` : `(${names.filter((n) => state.robots.get(n).online).length}/${names.length} online)`
+    : "";
+  document.getElementById("stop-all-scope").textContent = `${names.length} robot${names.length === 1 ? "" : "s"}`;
   if (!names.length) {
-    robotList.innerHTML = `<div class="muted">waiting for robots…</div>`;
+    if (!robotList.querySelector(".muted")) robotList.innerHTML = `<div class="muted">waiting for robots…</div>`;
     return;
   }
+  const placeholder = robotList.querySelector(":scope > .muted");
+  if (placeholder) placeholder.remove();
   const now = Date.now();
-  robotList.innerHTML = names.map((n) => {
+  // With many robots only the selected card shows its details: the command panel stays in reach.
+  const compact = names.length > 4;
+  names.forEach((n, i) => {
     const r = state.robots.get(n);
+    if (!r.card) r.card = makeCard(n);
+    const card = r.card;
+    if (robotList.children[i] !== card) robotList.insertBefore(card, robotList.children[i] || null);
     const s = r.status;
+    card.classList.toggle("selected", n === state.selected);
+    card.classList.toggle("offline", !r.online);
+    card.classList.toggle("stale", down);
+    card.classList.toggle("compact", compact && n !== state.selected);
+    // While the station is unreachable nothing here is known to be current: say so, and let
+    // the ages grow instead of showing the last fresh ones.
+    const since = down ? now - state.stationDownSince : 0;
     const seen = r.lastSeenMs ? Math.max(0, now - r.lastSeenMs) : null;
-    const fix = (r.pose && r.pose.fix) || (s && s.fix) || "NoFix";
-    const slam = s ? s.slam : null;
-    const slamTxt = !slam ? "–" : slam.ok ? `ok ${Math.round(slam.inlier_ratio * 100)}%${slam.degenerate ? " degenerate" : ""}` : `FAIL (${slam.failures})`;
-    const slamCls = !slam ? "muted" : slam.ok && !slam.degenerate ? "ok" : slam.ok ? "warn" : "bad";
+    setText(card, "dot", "", `dot ${down ? "muted" : r.online ? "ok" : "bad"}`);
+    setText(card, "seen", down
+      ? `station unreachable for ${fmtAge(since)} · last known ${r.online ? "online" : "offline"}`
+      : `${r.online ? "online" : "offline"} · ${seen === null ? "never seen" : fmtAge(seen) + " ago"}`);
+    card.querySelector('[data-field="rec"]').classList.toggle("hidden", !(s && s.recording));
     const mission = s ? s.mission : "–";
-    const ages = ["pose", "status", "tile"].map((k) => {
-      const a = r.ages ? r.ages[k] : undefined;
-      const hz = r.rates && Number.isFinite(r.rates[k]) ? ` ${r.rates[k].toFixed(1)}Hz` : "";
-      return `<span class="age ${ageClass(a)}" title="${k}: last message age and rate">${k} ${fmtAge(a)}${hz}</span>`;
-    }).join("");
-    const route = s && s.route ? `<div class="kv"><span>route</span><span>${esc(s.route.route_id)} ${s.route.waypoint}/${s.route.waypoints} · ${Number(s.route.distance_left_m).toFixed(1)} m left${s.route.detours ? ` · ${s.route.detours} detours` : ""}</span></div>` : "";
-    const err = s && s.last_error ? `<div class="robot-error" title="last error reported by the robot">⚠ ${esc(s.last_error)}</div>` : "";
-    const counters = s ? [
+    setText(card, "mission", mission, MISSION_CLASS[mission] || "");
+    setText(card, "reason", s && s.reason ? s.reason : "");
+    setText(card, "mode", s ? `(${s.mode})` : "");
+    setHtml(card, "run", missions ? missions.cardLine(n) : "");
+    const fix = (r.pose && r.pose.fix) || (s && s.fix) || "NoFix";
+    setText(card, "fix", `${fix}${s && s.gnss_lost ? " · LOST" : ""}`, FIX_CLASS[fix] || "");
+    const slam = s ? s.slam : null;
+    setText(card, "slam", !slam ? "–" : slam.ok ? `ok ${Math.round(slam.inlier_ratio * 100)}%${slam.degenerate ? " degenerate" : ""}` : `FAIL (${slam.failures})`,
+      !slam ? "muted" : slam.ok && !slam.degenerate ? "ok" : slam.ok ? "warn" : "bad");
+    setText(card, "speed", `${r.pose ? Number(r.pose.v_mps).toFixed(2) : "–"} m/s${s ? ` · limit ${Number(s.speed_limit_mps).toFixed(2)}` : ""}${s && s.speed_max_mps ? ` (max ${Number(s.speed_max_mps).toFixed(2)})` : ""}${s && s.scan_hz ? ` · scan ${s.scan_hz.toFixed(1)} Hz` : ""}`);
+    card.querySelector('[data-field="zone-row"]').classList.toggle("hidden", !(s && s.zone));
+    setText(card, "zone", s && s.zone ? s.zone : "");
+    card.querySelector('[data-field="route-row"]').classList.toggle("hidden", !(s && s.route));
+    setText(card, "route", s && s.route ? `${s.route.name || s.route.route_id} ${s.route.waypoint}/${s.route.waypoints} · ${Number(s.route.distance_left_m).toFixed(1)} m left${s.route.detours ? ` · ${s.route.detours} detours` : ""}` : "");
+    setHtml(card, "ages", ["pose", "status", "tile"].map((k) => {
+      const a0 = r.ages ? r.ages[k] : undefined;
+      const a = down && Number.isFinite(a0) ? a0 + (now - r.restAt) : a0;
+      const hz = !down && r.rates && Number.isFinite(r.rates[k]) ? ` ${r.rates[k].toFixed(1)}Hz` : "";
+      return `<span class="age ${down ? "muted" : ageClass(a)}" title="${k}: last message age and rate">${k} ${fmtAge(a)}${hz}</span>`;
+    }).join(""));
+    setHtml(card, "counters", s ? [
       s.collisions ? `<span class="bad">collisions ${s.collisions}</span>` : "",
       s.commands_refused ? `<span class="warn">refused ${s.commands_refused}</span>` : "",
       s.decode_errors ? `<span class="warn">decode err ${s.decode_errors}</span>` : "",
-    ].filter(Boolean).join(" ") : "";
-    return `<div class="robot-card${n === state.selected ? " selected" : ""}${r.online ? "" : " offline"}" data-robot="${esc(n)}" tabindex="0">
-      <div class="robot-head">
-        <span class="dot ${r.online ? "ok" : "bad"}"></span>
-        <span class="robot-name">${esc(n)}</span>
-        <span class="muted small">${r.online ? "online" : "offline"} · ${seen === null ? "never seen" : fmtAge(seen) + " ago"}</span>
-        ${s && s.recording ? `<span class="rec" title="recording a route">● REC</span>` : ""}
-      </div>
-      <div class="kv"><span>mission</span><span><b class="${MISSION_CLASS[mission] || ""}" data-field="mission">${esc(mission)}</b>${s && s.reason ? ` <span class="muted" data-field="reason">${esc(s.reason)}</span>` : ""}${s ? ` <span class="muted">(${esc(s.mode)})</span>` : ""}</span></div>
-      <div class="kv"><span>GNSS</span><span class="${FIX_CLASS[fix] || ""}" data-field="fix">${esc(fix)}${s && s.gnss_lost ? " · LOST" : ""}</span></div>
-      <div class="kv"><span>SLAM</span><span class="${slamCls}" data-field="slam">${esc(slamTxt)}</span></div>
-      <div class="kv"><span>speed</span><span>${r.pose ? Number(r.pose.v_mps).toFixed(2) : "–"} m/s${s ? ` · limit ${Number(s.speed_limit_mps).toFixed(1)}` : ""}${s && s.scan_hz ? ` · scan ${s.scan_hz.toFixed(1)} Hz` : ""}</span></div>
-      ${route}
-      <div class="ages">${ages}</div>
-      ${counters ? `<div class="counters">${counters}</div>` : ""}
-      ${err}
-    </div>`;
-  }).join("");
+    ].filter(Boolean).join(" ") : "");
+    const errEl = card.querySelector('[data-field="error"]');
+    errEl.classList.toggle("hidden", !(s && s.last_error));
+    setText(card, "error", s && s.last_error ? `⚠ ${s.last_error}` : "");
+  });
+  for (const el of [...robotList.querySelectorAll(".robot-card")]) {
+    if (!state.robots.has(el.dataset.robot)) el.remove();
+  }
 }
 
 robotList.addEventListener("click", (ev) => {
+  const act = ev.target.closest("button[data-mission-act]");
   const card = ev.target.closest(".robot-card");
+  if (act && card && missions) {
+    missions.runAction(card.dataset.robot, act.dataset.missionAct);
+    return;
+  }
   if (card) selectRobot(card.dataset.robot);
 });
 
@@ -530,9 +655,14 @@ function selectRobot(name) {
   }
   document.getElementById("cmd-robot").textContent = name;
   document.getElementById("goal-banner-robot").textContent = name;
-  document.getElementById("stop-btn").textContent = `STOP ${name}`;
+  // The STOP button says whom it stops, in that robot's colour: only the selected robot.
+  const stopBtn = document.getElementById("stop-btn");
+  document.getElementById("stop-scope").textContent = `${name} only`;
+  stopBtn.style.setProperty("--robot", robotColor(name));
+  stopBtn.title = `Stop ${name} only (Space). STOP ALL stops every robot (Shift+Space).`;
+  stopBtn.dataset.robot = name;
   const r = robotView(name);
-  if (r.status) syncSpeedSlider(r.status.speed_limit_mps);
+  if (r.status) syncSpeedSlider(r.status);
   if (!state.datumManual) {
     if (r.datumId) setDatum(r.datumId);
     else chooseDatum();
@@ -572,13 +702,17 @@ function showToast(level, text) {
   setTimeout(() => div.remove(), level === "error" ? 12000 : 4000);
 }
 
-/** A robot-side error, from WS `error` or from `status.last_error`; shown once per change. */
+/** A robot-side error, from WS `error` or from `status.last_error`: logged and popped once when
+ * it changes, never again for the same text (it used to pop every 30 s for as long as the robot
+ * kept reporting it). */
 function robotError(name, message, toast = true) {
   const r = robotView(name);
-  const now = Date.now();
-  if (r.lastError === message && now - r.lastErrorAt < 30000) return;
+  if (!message) {
+    r.lastError = null;
+    return;
+  }
+  if (r.lastError === message) return;
   r.lastError = message;
-  r.lastErrorAt = now;
   logMsg("error", `${name}: ${message}`, toast);
 }
 
@@ -666,19 +800,24 @@ async function stopRobot(name, reason) {
 }
 
 document.getElementById("stop-btn").addEventListener("click", () => {
+  // The button says whom it stops; with no robot selected there is no one to stop.
   if (state.selected) stopRobot(state.selected, "operator STOP button");
-  else stopAll();
+  else logMsg("warn", "no robot selected: STOP ALL stops every robot", true);
 });
 document.getElementById("stop-all-btn").addEventListener("click", stopAll);
 function stopAll() {
-  const names = [...state.robots.keys()];
-  if (!names.length) logMsg("warn", "no robots to stop", true);
+  const names = [...state.robots.keys()].filter((n) => state.robots.get(n).online);
+  if (!names.length) logMsg("warn", "no online robots to stop", true);
   for (const n of names) stopRobot(n, "operator STOP ALL");
 }
 
 // goal mode
 const goalBtn = document.getElementById("goal-mode-btn");
 function setGoalMode(on) {
+  if (on) {
+    if (zones && zones.drawing()) zones.cancel();
+    if (missions && missions.adding()) missions.stopAdding();
+  }
   state.goalMode = on && !!state.selected;
   if (on && !state.selected) logMsg("warn", "select a robot first", true);
   goalBtn.classList.toggle("active", state.goalMode);
@@ -721,16 +860,24 @@ const speedValue = document.getElementById("speed-value");
 let speedDragging = false;
 speedSlider.addEventListener("input", () => {
   speedDragging = true;
-  speedValue.textContent = `${Number(speedSlider.value).toFixed(1)} m/s`;
+  speedValue.textContent = `${Number(speedSlider.value).toFixed(2)} m/s`;
 });
 speedSlider.addEventListener("change", async () => {
   speedDragging = false;
   await command(state.selected, "speed", { limit_mps: Number(speedSlider.value) });
 });
-function syncSpeedSlider(limit) {
+/** The slider offers what the robot can do: up to its own top speed (it used to offer 2 m/s to a
+ * robot capped at 0.5, and snap back in silence). */
+function syncSpeedSlider(s) {
+  const max = Number(s.speed_max_mps);
+  if (Number.isFinite(max) && max > 0) {
+    if (Number(speedSlider.max) !== max) speedSlider.max = String(max);
+    document.getElementById("speed-max").textContent = `max ${max.toFixed(2)}`;
+  }
+  const limit = Number(s.speed_limit_mps);
   if (speedDragging || !Number.isFinite(limit) || limit <= 0) return;
   speedSlider.value = String(limit);
-  speedValue.textContent = `${Number(limit).toFixed(1)} m/s`;
+  speedValue.textContent = `${limit.toFixed(2)} m/s`;
 }
 
 // pause / resume / cancel
@@ -842,7 +989,8 @@ window.addEventListener("keydown", (ev) => {
   if (ev.repeat) return;
   if (ev.code === "Space") {
     ev.preventDefault();
-    document.getElementById("stop-btn").click();
+    if (ev.shiftKey) stopAll();
+    else document.getElementById("stop-btn").click();
   } else if (ev.code === "KeyG") {
     setGoalMode(!state.goalMode);
   } else if (ev.code === "KeyF") {
@@ -1074,6 +1222,7 @@ function applyRobotRest(j) {
   if (Array.isArray(j.path)) setPath(r, j.path);
   r.rates = j.rates_hz || {};
   r.ages = j.ages_ms || {};
+  r.restAt = Date.now();
 }
 
 function samePath(a, b) {
@@ -1094,9 +1243,9 @@ function applyStatus(r, s) {
   if (!r.status || s.t_unix_ms !== r.status.t_unix_ms) r.statusAt = Date.now();
   r.status = s;
   // An error that predates the page goes to the log and the robot card, a new one also pops up.
-  if (s.last_error) robotError(r.name, s.last_error, !first);
+  robotError(r.name, s.last_error, !first);
   if (r.name === state.selected) {
-    syncSpeedSlider(s.speed_limit_mps);
+    syncSpeedSlider(s);
     updateRecordButton();
   }
 }
@@ -1104,6 +1253,7 @@ function applyStatus(r, s) {
 async function refreshRobots() {
   try {
     const list = (await api("GET", "/api/robots")) || [];
+    stationBack();
     for (const j of list) applyRobotRest(j);
     if (!state.selected && list.length) selectRobot([...list].sort((a, b) => Number(b.online) - Number(a.online))[0].robot);
     if (!state.datumId) chooseDatum();
@@ -1127,8 +1277,24 @@ async function refreshHealth() {
 }
 
 async function refreshAll() {
-  await Promise.all([refreshDatums(), refreshRobots(), refreshRoutes(), refreshHealth()]);
-  await Promise.all([refreshTiles(), refreshSessions()]);
+  await Promise.all([refreshDatums(), refreshRobots(), refreshRoutes(), refreshHealth(), alerts.refresh(), missions.refresh(), missions.refreshRuns()]);
+  await Promise.all([refreshTiles(), refreshSessions(), zones.refresh()]);
+}
+
+/** The station answers again: cards are current once more. */
+function stationBack() {
+  if (state.stationDownSince === null) return;
+  state.stationDownSince = null;
+  for (const r of state.robots.values()) redrawRobot(r);
+  renderRobots();
+}
+
+/** The station stopped answering: what the cards show is no longer known to be current. */
+function stationDown() {
+  if (state.stationDownSince !== null) return;
+  state.stationDownSince = Date.now();
+  for (const r of state.robots.values()) redrawRobot(r);
+  renderRobots();
 }
 
 const connEl = document.getElementById("conn");
@@ -1152,6 +1318,7 @@ function setConn(up, text) {
   connEl.className = `conn ${up ? "conn-up" : "conn-down"}`;
   banner.classList.toggle("hidden", up);
   if (!up) banner.textContent = `Connection to the station lost (${text}); retrying… The robot keeps its last command until its own timeouts stop it.`;
+  if (!up && text !== "connecting") stationDown();
 }
 
 function connectWs() {
@@ -1241,6 +1408,21 @@ function handleWs(m) {
     case "error":
       robotError(m.robot, m.message);
       break;
+    case "alert":
+      if (m.alert) alerts.onAlert(m.alert);
+      break;
+    case "alerts":
+      alerts.refresh();
+      break;
+    case "zones":
+      zones.refresh();
+      break;
+    case "missions":
+      missions.refresh();
+      break;
+    case "mission_run":
+      if (m.run) missions.onRun(m.run);
+      break;
     default:
       break;
   }
@@ -1248,13 +1430,33 @@ function handleWs(m) {
 
 // Health and message ages come from REST once a second; the tile index and datum bounds slowly,
 // as a safety net for WebSocket messages lost while reconnecting.
-setInterval(() => { refreshRobots(); }, 1000);
+setInterval(() => { if (state.stationDownSince !== null) renderRobots(); refreshRobots(); }, 1000);
 setInterval(() => { refreshHealth(); refreshDatums(); refreshTiles(); }, 5000);
 setInterval(() => { refreshSessions(); }, 15000);
+
+// ---------------------------------------------------------------------------------------------
+// Alerts, zones, missions, background map
+// ---------------------------------------------------------------------------------------------
+
+const ctx = {
+  map, L, ll, api, esc, logMsg, showToast, state, enc, withToken, headers, robotColor, currentDatum,
+  renderRobots: () => queueRender(),
+  setMode: (m) => { state.mode = m; if (m) setGoalMode(false); },
+  mode: () => state.mode,
+  showDatum: (id) => {
+    state.datumManual = id;
+    document.getElementById("datum-select").value = id;
+    setDatum(id);
+  },
+};
+alerts = initAlerts(ctx);
+zones = initZones(ctx);
+missions = initMissions(ctx);
+basemap = initBasemap(ctx);
 
 setConn(false, "connecting");
 connectWs();
 refreshAll();
 
 // Handle for the browser tests and for poking around in the console; not used by the page itself.
-window.terranav = { map, state, ll };
+window.terranav = { map, state, ll, alerts, zones, missions, basemap, robotColor };

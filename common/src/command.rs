@@ -18,7 +18,7 @@
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use crate::msg::{CmdHeader, DriveCmd, GoalCmd, GoalTarget, RouteCmd, SpeedCmd};
+use crate::msg::{CmdHeader, DriveCmd, GoalCmd, GoalTarget, RouteCmd, SpeedCmd, ZoneKind, ZoneSet};
 use serde::{Deserialize, Serialize};
 
 /// Why a command was refused: stable codes, never renamed (API clients and tests match on them).
@@ -77,6 +77,13 @@ pub enum RefusalCode {
     NoPose,
     /// A command replayed or out of order (older sequence or stale time).
     Replayed,
+    /// A goal inside a keep-out zone.
+    GoalInKeepOut,
+    /// A zone that is not a usable polygon (too few corners, not finite, crossing itself) or a
+    /// slow zone without a positive speed.
+    BadZone,
+    /// A zone set for another session's map frame.
+    ZoneFrameMismatch,
 }
 
 impl RefusalCode {
@@ -108,6 +115,9 @@ impl RefusalCode {
             RefusalCode::NotRepeating => "not_repeating",
             RefusalCode::NoPose => "no_pose",
             RefusalCode::Replayed => "replayed",
+            RefusalCode::GoalInKeepOut => "goal_in_keep_out",
+            RefusalCode::BadZone => "bad_zone",
+            RefusalCode::ZoneFrameMismatch => "zone_frame_mismatch",
         }
     }
 }
@@ -495,6 +505,70 @@ impl ReplayGuard {
     }
 }
 
+/// Checks a goal, in the same map frame as `zones`, against the keep-out zones: a goal inside
+/// one is refused with the zone's name (the robot would never be allowed to reach it).
+pub fn check_goal_zones(goal_m: (f64, f64), zones: &[crate::msg::Zone]) -> Result<(), Refusal> {
+    for z in zones {
+        if z.kind == ZoneKind::KeepOut && crate::zone::contains(&z.polygon_m, goal_m) {
+            return refuse(
+                RefusalCode::GoalInKeepOut,
+                format!(
+                    "goal: ({:.1}, {:.1}) is inside keep-out zone {:?}",
+                    goal_m.0, goal_m.1, z.name
+                ),
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Longest zone name, characters.
+pub const MAX_ZONE_NAME: usize = 200;
+/// Most corners of one zone polygon.
+pub const MAX_ZONE_CORNERS: usize = 1000;
+/// Most zones in one set.
+pub const MAX_ZONES: usize = 500;
+
+/// Checks a zone set: every polygon has 3 to [`MAX_ZONE_CORNERS`] finite corners, encloses an
+/// area and does not cross itself; slow zones have a positive, finite speed.
+pub fn check_zones(set: &ZoneSet) -> Result<(), Refusal> {
+    if set.zones.len() > MAX_ZONES {
+        return refuse(
+            RefusalCode::BadZone,
+            format!("zones: {} zones, at most {MAX_ZONES}", set.zones.len()),
+        );
+    }
+    for z in &set.zones {
+        if z.name.chars().count() > MAX_ZONE_NAME {
+            return refuse(
+                RefusalCode::BadZone,
+                format!(
+                    "zones: zone {} has a name longer than {MAX_ZONE_NAME} characters",
+                    z.zone_id
+                ),
+            );
+        }
+        if let ZoneKind::Slow { speed_mps } = z.kind {
+            if !(speed_mps.is_finite() && speed_mps > 0.0) {
+                return refuse(
+                    RefusalCode::BadZone,
+                    format!(
+                        "zones: slow zone {:?} needs a positive speed, got {speed_mps} m/s",
+                        z.name
+                    ),
+                );
+            }
+        }
+        crate::zone::check_polygon(&z.polygon_m).map_err(|e| {
+            Refusal::new(
+                RefusalCode::BadZone,
+                format!("zones: zone {:?}: {e}", z.name),
+            )
+        })?;
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -587,6 +661,48 @@ mod tests {
             code(check_goal(&map(0.0, 5000.0), &l, &ctx)),
             Some(RefusalCode::GoalOffMap)
         );
+    }
+
+    #[test]
+    fn zones_are_checked_and_goals_inside_keep_out_refused() {
+        use crate::msg::Zone;
+        let z = |kind, poly: Vec<(f64, f64)>| Zone {
+            zone_id: "z".into(),
+            name: "pond".into(),
+            kind,
+            polygon_m: poly,
+        };
+        let sq = vec![(0.0, 0.0), (2.0, 0.0), (2.0, 2.0), (0.0, 2.0)];
+        let ok = ZoneSet {
+            version: 1,
+            session_id: "s".into(),
+            zones: vec![z(ZoneKind::KeepOut, sq.clone())],
+        };
+        assert_eq!(check_zones(&ok), Ok(()));
+        let e = check_goal_zones((1.0, 1.0), &ok.zones).unwrap_err();
+        assert_eq!(e.code, RefusalCode::GoalInKeepOut);
+        assert!(e.message.contains("pond"), "{e}");
+        assert_eq!(check_goal_zones((3.0, 1.0), &ok.zones), Ok(()));
+        let slow = ZoneSet {
+            zones: vec![z(ZoneKind::Slow { speed_mps: 0.2 }, sq.clone())],
+            ..ok.clone()
+        };
+        assert_eq!(
+            check_goal_zones((1.0, 1.0), &slow.zones),
+            Ok(()),
+            "slow zones take goals"
+        );
+        for bad in [
+            z(ZoneKind::Slow { speed_mps: 0.0 }, sq.clone()),
+            z(ZoneKind::KeepOut, vec![(0.0, 0.0), (1.0, 0.0)]),
+        ] {
+            let set = ZoneSet {
+                zones: vec![bad],
+                ..ok.clone()
+            };
+            assert_eq!(check_zones(&set).unwrap_err().code, RefusalCode::BadZone);
+        }
+        assert_eq!(RefusalCode::GoalInKeepOut.as_str(), "goal_in_keep_out");
     }
 
     #[test]

@@ -110,6 +110,9 @@ pub enum Topic {
     Status,
     /// A recorded route, published when a teach recording ends (pub + queryable).
     Route,
+    /// The zones the robot must obey, in its map frame: published by the station, which also
+    /// answers queries for it (a robot that starts late asks).
+    Zones,
     /// Goal command.
     CmdGoal,
     /// Route command: record / stop / repeat / upload / pause / resume / cancel.
@@ -132,6 +135,7 @@ impl Topic {
             Topic::Path => "path".into(),
             Topic::Status => "status".into(),
             Topic::Route => "route".into(),
+            Topic::Zones => "zones".into(),
             Topic::CmdGoal => "cmd/goal".into(),
             Topic::CmdRoute => "cmd/route".into(),
             Topic::CmdDrive => "cmd/drive".into(),
@@ -179,6 +183,11 @@ pub fn robot_commands(robot: &RobotId) -> String {
     format!("{PREFIX}/{robot}/cmd/**")
 }
 
+/// The zone sets of every robot: `terranav/*/zones` (the station's queryable).
+pub fn all_zones() -> String {
+    format!("{PREFIX}/*/zones")
+}
+
 /// Parses a concrete key into its robot id and topic.
 pub fn parse(key: &str) -> Result<(RobotId, Topic), KeyError> {
     let mut parts = key.split('/');
@@ -194,6 +203,7 @@ pub fn parse(key: &str) -> Result<(RobotId, Topic), KeyError> {
         ["path"] => Topic::Path,
         ["status"] => Topic::Status,
         ["route"] => Topic::Route,
+        ["zones"] => Topic::Zones,
         ["cmd", "goal"] => Topic::CmdGoal,
         ["cmd", "route"] => Topic::CmdRoute,
         ["cmd", "drive"] => Topic::CmdDrive,
@@ -247,6 +257,7 @@ mod tests {
             Topic::Path,
             Topic::Status,
             Topic::Route,
+            Topic::Zones,
             Topic::CmdGoal,
             Topic::CmdRoute,
             Topic::CmdDrive,

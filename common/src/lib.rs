@@ -6,6 +6,7 @@
 //! - [`grid`]: traversability cell states, map tiles on the fixed map-frame lattice, and the tile codec.
 //! - [`geo`]: WGS-84 geodetic / ECEF / ENU conversions and NMEA-0183 sentences.
 //! - [`geom`]: small SE(2)/SE(3) helpers over nalgebra.
+//! - [`zone`]: polygon geometry of keep-out and slow zones (inside, distance, checks).
 //! - [`robot`]: the robot profile (body, limits, sensor mounts) that agent, simulator and station read.
 //! - [`security`]: identities, the access rules on the key space, TLS settings, the PKI folder layout,
 //!   and which endpoints are loopback.
@@ -19,3 +20,4 @@ pub mod keys;
 pub mod msg;
 pub mod robot;
 pub mod security;
+pub mod zone;

@@ -12,9 +12,10 @@ use serde::{de::DeserializeOwned, Deserialize, Serialize};
 
 /// Version of every message layout in this module. Bump on any incompatible change.
 ///
-/// 2: commands travel in a [`Cmd`] envelope (sender, sequence, time) so a replay is refused;
+/// 2: zones (keep-out and slow) travel to the robot as a [`ZoneSet`].
+/// 3: commands travel in a [`Cmd`] envelope (sender, sequence, time) so a replay is refused;
 /// [`Status::commands_replayed`].
-pub const SCHEMA_VERSION: u16 = 2;
+pub const SCHEMA_VERSION: u16 = 3;
 
 /// Why a payload could not be decoded.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -229,6 +230,8 @@ pub enum MissionState {
 pub struct RouteProgress {
     /// Route id.
     pub route_id: String,
+    /// Route name, as the operator gave it.
+    pub name: String,
     /// Index of the next waypoint (0-based).
     pub waypoint: u32,
     /// Number of waypoints.
@@ -277,6 +280,12 @@ pub struct Status {
     pub slam: SlamHealth,
     /// Speed limit in force, m/s.
     pub speed_limit_mps: f32,
+    /// The robot's own top speed (what no speed limit can exceed), m/s.
+    pub speed_max_mps: f32,
+    /// Version of the zone set in force ([`ZoneSet::version`]; 0: none received).
+    pub zones_version: u64,
+    /// The zone acting on the robot now, for humans, e.g. "slow zone gate: 0.20 m/s".
+    pub zone: Option<String>,
     /// True while a route is being recorded.
     pub recording: bool,
     /// Route progress while repeating.
@@ -448,6 +457,44 @@ pub struct SpeedCmd {
     pub limit_mps: f32,
 }
 
+/// What a zone does to robots.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum ZoneKind {
+    /// Never planned through; a goal inside is refused; a robot inside leaves by the shortest way.
+    KeepOut,
+    /// Speed capped while the robot is in (or about to enter) the zone.
+    Slow {
+        /// Speed cap, m/s.
+        speed_mps: f32,
+    },
+}
+
+/// One zone: a simple polygon in the map frame of its [`ZoneSet`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Zone {
+    /// Id chosen by the station.
+    pub zone_id: String,
+    /// Name given by the operator.
+    pub name: String,
+    /// What it does.
+    pub kind: ZoneKind,
+    /// Polygon corners (x, y), metres, in order, not closed (the last joins the first).
+    pub polygon_m: Vec<(f64, f64)>,
+}
+
+/// `terranav/<robot>/zones`: every zone the robot must obey, in its own map frame. The station
+/// publishes it when zones change and when the robot's session appears, and answers queries on
+/// the key (late joiners). A new set replaces the old one whole.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Default)]
+pub struct ZoneSet {
+    /// Increases with every change at the station.
+    pub version: u64,
+    /// Session whose map frame the polygons are in (a robot refuses a set for another session).
+    pub session_id: String,
+    /// The zones.
+    pub zones: Vec<Zone>,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -523,6 +570,24 @@ mod tests {
         });
         rt(SpeedCmd { limit_mps: 0.3 });
         rt(route());
+        rt(ZoneSet {
+            version: 3,
+            session_id: "s".into(),
+            zones: vec![
+                Zone {
+                    zone_id: "z1".into(),
+                    name: "pond".into(),
+                    kind: ZoneKind::KeepOut,
+                    polygon_m: vec![(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)],
+                },
+                Zone {
+                    zone_id: "z2".into(),
+                    name: "gate".into(),
+                    kind: ZoneKind::Slow { speed_mps: 0.2 },
+                    polygon_m: vec![(0.0, 0.0), (2.0, 0.0), (2.0, 2.0), (0.0, 2.0)],
+                },
+            ],
+        });
     }
 
     #[test]
@@ -598,6 +663,7 @@ mod tests {
             let _ = decode::<Path>(&bytes);
             let _ = decode_cmd::<GoalCmd>(&bytes);
             let _ = decode_cmd::<DriveCmd>(&bytes);
+            let _ = decode::<ZoneSet>(&bytes);
         }
     }
 }

@@ -1,5 +1,5 @@
 //! The robot profile (`config/robot.toml`): body, mobility limits and sensor mounting.
-//! Defaults are the Clearpath Husky A200 of methods.md §4.
+//! Defaults are the source works' Clearpath Husky A200 (docs/algorithms.md §4).
 //!
 //! Shared by the agent (footprint, sensor mounts, limits), the simulator (the plant and the truth
 //! labels) and the station (the limits it shows), so it lives here rather than in any of them.

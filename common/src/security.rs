@@ -142,11 +142,17 @@ fn rule(id: &str, flow: &str, messages: &[&str], key_exprs: &[String]) -> Value 
 pub fn robot_acl(robot: &RobotId) -> Value {
     let own = keys::robot_all(robot);
     let all = keys::all();
+    // What the station sends a robot: its commands and its zone set (pushed, or asked for by
+    // the robot when it starts).
+    let zones = keys::key(robot, keys::Topic::Zones);
+    let inbox = [keys::robot_commands(robot), zones.clone()];
     json!({
         "enabled": true,
         "default_permission": "deny",
         "rules": [
-            rule("station-commands", "ingress", &["put"], &[keys::robot_commands(robot)]),
+            rule("station-commands", "ingress", &["put"], &inbox),
+            rule("station-answers-zones", "ingress", &["reply", "declare_queryable"],
+                 std::slice::from_ref(&zones)),
             rule("station-queries", "ingress", &["query"], std::slice::from_ref(&own)),
             rule("station-subscribes", "ingress",
                  &["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"],
@@ -154,15 +160,16 @@ pub fn robot_acl(robot: &RobotId) -> Value {
             rule("robot-publishes", "egress",
                  &["put", "reply", "declare_queryable", "liveliness_token"],
                  std::slice::from_ref(&own)),
-            rule("robot-takes-commands", "egress", &["declare_subscriber"],
-                 &[keys::robot_commands(robot)]),
+            rule("robot-takes-commands", "egress", &["declare_subscriber"], &inbox),
+            rule("robot-asks-zones", "egress", &["query"], std::slice::from_ref(&zones)),
         ],
         "subjects": [{"id": "station", "cert_common_names": [STATION_CN]}],
         "policies": [{
             "id": "station-commands-this-robot",
             "subjects": ["station"],
-            "rules": ["station-commands", "station-queries", "station-subscribes",
-                      "robot-publishes", "robot-takes-commands"],
+            "rules": ["station-commands", "station-answers-zones", "station-queries",
+                      "station-subscribes", "robot-publishes", "robot-takes-commands",
+                      "robot-asks-zones"],
         }],
     })
 }
@@ -203,13 +210,16 @@ pub fn station_acl(robots: &[AdmittedRobot]) -> Value {
     for r in robots {
         let id = r.robot.as_str();
         let own = keys::robot_all(&r.robot);
-        let cmds = keys::robot_commands(&r.robot);
+        let zones = keys::key(&r.robot, keys::Topic::Zones);
+        let inbox = [keys::robot_commands(&r.robot), zones.clone()];
         let names = [
             format!("{id}-publishes"),
             format!("{id}-subscribes"),
             format!("{id}-commanded"),
             format!("{id}-queried"),
             format!("{id}-watched"),
+            format!("{id}-asks-zones"),
+            format!("{id}-zones-answered"),
         ];
         rules.push(rule(
             &names[0],
@@ -221,14 +231,9 @@ pub fn station_acl(robots: &[AdmittedRobot]) -> Value {
             &names[1],
             "ingress",
             &["declare_subscriber"],
-            std::slice::from_ref(&cmds),
+            &inbox,
         ));
-        rules.push(rule(
-            &names[2],
-            "egress",
-            &["put"],
-            std::slice::from_ref(&cmds),
-        ));
+        rules.push(rule(&names[2], "egress", &["put"], &inbox));
         rules.push(rule(
             &names[3],
             "egress",
@@ -244,6 +249,18 @@ pub fn station_acl(robots: &[AdmittedRobot]) -> Value {
                 "liveliness_query",
             ],
             std::slice::from_ref(&all),
+        ));
+        rules.push(rule(
+            &names[5],
+            "ingress",
+            &["query"],
+            std::slice::from_ref(&zones),
+        ));
+        rules.push(rule(
+            &names[6],
+            "egress",
+            &["reply", "declare_queryable"],
+            std::slice::from_ref(&zones),
         ));
         let subject = format!("robot-{id}");
         subjects.push(json!({"id": subject, "cert_common_names": [r.cn]}));

@@ -4,11 +4,16 @@
 //! (`security`).
 #![deny(missing_docs)]
 
+pub mod alerts;
 pub mod api;
+pub mod basemap;
 pub mod cli;
+pub mod export;
 pub mod fleet;
 pub mod merge;
+pub mod missions;
 pub mod pki;
 pub mod security;
 pub mod station;
 pub mod store;
+pub mod zones;

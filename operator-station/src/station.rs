@@ -20,9 +20,13 @@ use tokio::sync::broadcast;
 use zenoh::query::ConsolidationMode;
 use zenoh::sample::SampleKind;
 
+use crate::alerts::{AlertConfig, AlertKind, Alerts, Observation};
 use crate::fleet::{Fleet, RateTopic, MAX_PENDING_TILES};
 use crate::merge::{MergeJob, MergeQueue, MergeWorker, MergedMap, TileChange};
+use crate::missions::runner::{RobotNow, Run, RunAction};
+use crate::missions::Mission;
 use crate::store::{self, DatumRow, RouteRow, SessionRow, StoreOp, StoreWriter};
+use crate::zones::{zone_set_for, ZoneRecord};
 
 /// Version of the station.
 pub const VERSION: &str = env!("CARGO_PKG_VERSION");
@@ -125,7 +129,22 @@ pub struct StationOptions {
     pub zenoh: zenoh::Config,
     /// Database file.
     pub db: PathBuf,
+    /// What raises alerts.
+    pub alerts: AlertConfig,
 }
+
+/// The operator's zones and the version of the set (Unix ms of the last change, so it grows
+/// across restarts too).
+#[derive(Clone, Debug, Default)]
+pub struct ZoneBook {
+    /// The zones.
+    pub records: Vec<ZoneRecord>,
+    /// Version of the set.
+    pub version: u64,
+}
+
+/// How often the station looks at every robot for alerts and advances mission runs.
+pub const WATCH_PERIOD: Duration = Duration::from_millis(250);
 
 /// Known datums (ids stable across restarts through the store).
 #[derive(Clone, Debug, Default)]
@@ -221,6 +240,14 @@ pub struct Inner {
     /// Stamps every command this station sends (sender id, sequence, time).
     pub stamper: CommandStamper,
     reader: Mutex<Option<rusqlite::Connection>>,
+    /// Keep-out and slow zones.
+    pub zones: Mutex<ZoneBook>,
+    /// Saved missions by id.
+    pub missions: Mutex<BTreeMap<String, Mission>>,
+    /// Mission runs by robot (the last one of each robot, also when it ended).
+    pub runs: Mutex<BTreeMap<String, Run>>,
+    /// The alert list.
+    pub alerts: Mutex<Alerts>,
 }
 
 /// A running station.
@@ -405,6 +432,9 @@ impl Inner {
                 encoded,
             });
         }
+        // The robot's zones in its frame, every time its session is heard: a robot that
+        // started (or a station that restarted) after the zones were drawn gets them now.
+        self.spawn_zones_push(Some(rid.to_string()));
         let json_s = serde_json::to_string(&s).unwrap_or_default();
         self.store(StoreOp::Session {
             row: SessionRow {
@@ -595,6 +625,188 @@ impl Inner {
         }
     }
 
+    /// The zone set of `robot` in its map frame, when its session is known.
+    pub fn zone_set(&self, robot: &str) -> Option<common::msg::ZoneSet> {
+        let (session, datum_id) = {
+            let f = self.fleet.lock().unwrap_or_else(|p| p.into_inner());
+            let r = f.robots.get(robot)?;
+            (r.session.clone()?, r.datum_id.clone()?)
+        };
+        let z = self.zones.lock().unwrap_or_else(|p| p.into_inner());
+        Some(zone_set_for(&z.records, z.version, &session, &datum_id))
+    }
+
+    /// Sends the zones to one robot (or every robot with a session) in its own frame.
+    pub fn spawn_zones_push(self: &Arc<Self>, robot: Option<String>) {
+        let me = self.clone();
+        tokio::spawn(async move {
+            let robots: Vec<String> = match robot {
+                Some(r) => vec![r],
+                None => me
+                    .fleet
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .robots
+                    .keys()
+                    .cloned()
+                    .collect(),
+            };
+            for r in robots {
+                let (Some(set), Ok(id)) = (me.zone_set(&r), RobotId::new(r.clone())) else {
+                    continue;
+                };
+                let key = keys::key(&id, Topic::Zones);
+                if let Err(e) = me
+                    .session()
+                    .put(&key, msg::encode(&set))
+                    .congestion_control(zenoh::qos::CongestionControl::Block)
+                    .await
+                {
+                    tracing::warn!("zones to {r}: {e}");
+                }
+            }
+        });
+    }
+
+    /// Replaces the zone set (after an API change): stores, bumps the version, tells robots
+    /// and browsers.
+    pub fn zones_changed(self: &Arc<Self>) {
+        let version = {
+            let mut z = self.zones.lock().unwrap_or_else(|p| p.into_inner());
+            z.version = now_unix_ms().max(z.version + 1);
+            z.version
+        };
+        self.spawn_zones_push(None);
+        self.emit(json!({"type": "zones", "version": version}).to_string());
+    }
+
+    /// One look at every robot: alerts, and the mission runs' next steps.
+    pub async fn watch_once(self: &Arc<Self>) {
+        let now_ms = now_unix_ms();
+        type Snapshot = (String, bool, Option<Status>, Option<Pose>);
+        let snap: Vec<Snapshot> = {
+            let f = self.fleet.lock().unwrap_or_else(|p| p.into_inner());
+            f.robots
+                .iter()
+                .map(|(id, r)| (id.clone(), r.online, r.status.clone(), r.pose.clone()))
+                .collect()
+        };
+        let raised = {
+            let mut a = self.alerts.lock().unwrap_or_else(|p| p.into_inner());
+            let mut out = Vec::new();
+            for (id, online, status, pose) in &snap {
+                out.extend(a.observe(
+                    id,
+                    Observation {
+                        online: *online,
+                        status: status.as_ref(),
+                        pose: pose.as_ref(),
+                    },
+                    now_ms,
+                ));
+            }
+            out
+        };
+        for a in raised {
+            tracing::info!(robot = a.robot, kind = ?a.kind, active = a.active, "alert: {}", a.message);
+            self.alert_changed(&a);
+        }
+        // Mission runs.
+        let mut sends: Vec<(String, RunAction)> = Vec::new();
+        let mut changed = Vec::new();
+        let mut failed = Vec::new();
+        {
+            let mut runs = self.runs.lock().unwrap_or_else(|p| p.into_inner());
+            for (robot, run) in runs.iter_mut().filter(|(_, r)| !r.ended()) {
+                let Some((_, online, status, pose)) = snap.iter().find(|s| &s.0 == robot) else {
+                    continue;
+                };
+                let before = (run.index, run.phase.clone());
+                let mut next_id = || self.goal_seq.fetch_add(1, Ordering::Relaxed);
+                let acts = run.step(
+                    now_ms,
+                    RobotNow {
+                        online: *online,
+                        status: status.as_ref(),
+                        pose: pose.as_ref(),
+                    },
+                    &mut next_id,
+                );
+                sends.extend(acts.into_iter().map(|a| (robot.clone(), a)));
+                if before != (run.index, run.phase.clone()) {
+                    changed.push(run.clone());
+                    if let crate::missions::runner::RunPhase::Failed { reason } = &run.phase {
+                        failed.push((robot.clone(), run.mission.name.clone(), reason.clone()));
+                    }
+                }
+            }
+        }
+        for (robot, act) in sends {
+            self.send_run_action(&robot, act).await;
+        }
+        for (robot, name, reason) in failed {
+            let a = self.alerts.lock().unwrap_or_else(|p| p.into_inner()).raise(
+                &robot,
+                AlertKind::MissionFailed,
+                format!("{robot}: mission {name:?} failed: {reason}"),
+                now_ms,
+            );
+            self.alert_changed(&a);
+        }
+        for run in changed {
+            self.emit(json!({"type": "mission_run", "run": run}).to_string());
+        }
+    }
+
+    /// Keeps an alert that was raised, resolved or acknowledged, and tells the browsers.
+    pub fn alert_changed(&self, a: &crate::alerts::Alert) {
+        self.store(StoreOp::Alert {
+            id: a.id,
+            json: serde_json::to_string(a).unwrap_or_default(),
+        });
+        self.emit(json!({"type": "alert", "alert": a}).to_string());
+    }
+
+    /// Sends what a mission run asks for.
+    pub async fn send_run_action(self: &Arc<Self>, robot: &str, act: RunAction) {
+        let Ok(id) = RobotId::new(robot) else { return };
+        let h = self.cmd_header();
+        let (topic, payload) = match act {
+            RunAction::Goal { goal_id, target } => (
+                Topic::CmdGoal,
+                msg::encode_cmd(
+                    h,
+                    &msg::GoalCmd {
+                        goal_id,
+                        target,
+                        tolerance_m: crate::missions::runner::WAYPOINT_TOLERANCE_M,
+                    },
+                ),
+            ),
+            RunAction::Speed(v) => (
+                Topic::CmdSpeed,
+                msg::encode_cmd(h, &msg::SpeedCmd { limit_mps: v }),
+            ),
+            RunAction::Stop => (
+                Topic::CmdStop,
+                msg::encode_cmd(
+                    h,
+                    &msg::StopCmd {
+                        reason: "mission cancelled".into(),
+                    },
+                ),
+            ),
+        };
+        if let Err(e) = self
+            .session()
+            .put(keys::key(&id, topic), payload)
+            .congestion_control(zenoh::qos::CongestionControl::Block)
+            .await
+        {
+            tracing::warn!("mission command to {robot}: {e}");
+        }
+    }
+
     /// Commits queued writes now, without blocking the async runtime.
     pub async fn flush_store_async(self: &Arc<Self>) {
         let me = self.clone();
@@ -631,7 +843,7 @@ impl Station {
     /// Opens the database (restoring the merged map), the Zenoh session, and starts listening.
     pub async fn start(opts: StationOptions) -> Result<Station, StationError> {
         let store = StoreWriter::start(&opts.db)?;
-        let (map, datums) = {
+        let (map, datums, zone_rows, mission_rows, alert_rows) = {
             let c = store::open(&opts.db)?;
             let mut map = MergedMap::default();
             let mut datums = Datums::default();
@@ -647,7 +859,20 @@ impl Station {
                     Err(e) => tracing::warn!("stored tile of {datum_id} unreadable: {e}"),
                 }
             }
-            (map, datums)
+            let zones: Vec<ZoneRecord> = store::zones(&c)?
+                .iter()
+                .filter_map(|j| serde_json::from_str(j).ok())
+                .collect();
+            let missions: BTreeMap<String, Mission> = store::missions(&c)?
+                .iter()
+                .filter_map(|j| serde_json::from_str::<Mission>(j).ok())
+                .map(|m| (m.mission_id.clone(), m))
+                .collect();
+            let alerts: Vec<crate::alerts::Alert> = store::alerts(&c, crate::alerts::MAX_ALERTS)?
+                .iter()
+                .filter_map(|j| serde_json::from_str(j).ok())
+                .collect();
+            (map, datums, zones, missions, alerts)
         };
         let map = Arc::new(RwLock::new(map));
         let (events, _) = broadcast::channel(4096);
@@ -692,8 +917,25 @@ impl Station {
             drive_seq: AtomicU32::new(start_seq),
             stamper: CommandStamper::new(sender),
             reader: Mutex::new(None),
+            zones: Mutex::new(ZoneBook {
+                records: zone_rows,
+                version: now_unix_ms(),
+            }),
+            missions: Mutex::new(mission_rows),
+            runs: Mutex::new(BTreeMap::new()),
+            alerts: Mutex::new(Alerts::restore(opts.alerts, alert_rows)),
         });
         let subs = declare_subscribers(&inner).await?;
+        let i5 = inner.clone();
+        let watch_task = tokio::spawn(async move {
+            let mut tick = tokio::time::interval(WATCH_PERIOD);
+            loop {
+                tick.tick().await;
+                i5.watch_once().await;
+            }
+        });
+        let mut subs = subs;
+        subs.push(Box::new(AbortOnDrop(watch_task)));
         Ok(Station {
             inner,
             merge: Some(merge),
@@ -755,8 +997,8 @@ impl Station {
     }
 }
 
-/// The station's subscriptions on its current session: every robot key, and liveliness (with
-/// history, so robots already there are seen at once).
+/// The station's subscriptions on its current session: every robot key, liveliness (with
+/// history, so robots already there are seen at once), and the queryable of the zone sets.
 async fn declare_subscribers(
     inner: &Arc<Inner>,
 ) -> Result<Vec<Box<dyn std::any::Any + Send + Sync>>, StationError> {
@@ -793,7 +1035,36 @@ async fn declare_subscribers(
         .await
         .map_err(zerr)?;
     subs.push(Box::new(live));
+    // Robots that start after the zones were drawn ask for them here.
+    let zq = session
+        .declare_queryable(keys::all_zones())
+        .await
+        .map_err(zerr)?;
+    let i4 = inner.clone();
+    let zone_task = tokio::spawn(async move {
+        while let Ok(q) = zq.recv_async().await {
+            let key = q.key_expr().as_str().to_string();
+            let Ok((robot, Topic::Zones)) = keys::parse(&key) else {
+                continue;
+            };
+            if let Some(set) = i4.zone_set(robot.as_str()) {
+                if let Err(e) = q.reply(&key, msg::encode(&set)).await {
+                    tracing::warn!("zones reply to {robot}: {e}");
+                }
+            }
+        }
+    });
+    subs.push(Box::new(AbortOnDrop(zone_task)));
     Ok(subs)
+}
+
+/// A task that ends with its owner.
+struct AbortOnDrop(tokio::task::JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
 }
 
 /// The lattice of a datum, from the store rows.

@@ -1,6 +1,6 @@
 //! The agent's configuration files: `config/robot.toml`, `slam.toml`, `mapper.toml`,
 //! `planner.toml`, `control.toml` and `mission.toml`, each optional (every value has the
-//! methods.md default in code), read here and nowhere else.
+//! default in code, docs/algorithms.md), read here and nowhere else.
 
 use agent::{AgentConfig, MissionFile};
 use std::path::{Path, PathBuf};

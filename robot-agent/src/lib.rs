@@ -18,5 +18,7 @@ pub mod bus;
 pub mod cli;
 pub mod config;
 pub mod navcomp;
+pub mod record;
 pub mod run;
 pub mod runtime;
+pub mod truth_log;

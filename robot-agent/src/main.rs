@@ -14,6 +14,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Benchmarks: the whole agent per sweep (`bench pipeline`).
+    Bench(cli::bench::BenchArgs),
     /// GNSS tools: decode NMEA-0183 logs.
     Gnss(cli::gnss::GnssArgs),
     /// Geodesy: WGS-84 geodetic / ECEF / ENU conversions.
@@ -42,6 +44,7 @@ fn main() -> std::process::ExitCode {
         .init();
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Bench(a) => cli::bench::run(a),
         Command::Gnss(a) => cli::gnss::run(a),
         Command::Geo(a) => cli::geo::run(a),
         Command::Lidar(a) => cli::lidar::run(a),

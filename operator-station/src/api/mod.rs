@@ -1,7 +1,12 @@
 //! axum REST + WebSocket API for the browser UI, exactly as `operator-station/API.md`, and the
-//! UI's static files; served over TLS by [`tls`] when asked (always off loopback).
+//! UI's static files, served over TLS by [`tls`] when asked (always off loopback). Zones,
+//! missions, alerts and the basemap have their own modules.
 
+mod alerts;
+mod basemap;
+mod missions;
 pub mod tls;
+mod zones;
 
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;
@@ -16,6 +21,7 @@ use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
+use common::command::{check_goal, BoundsM, CommandLimits, RobotContext};
 use common::grid::TileIndex;
 use common::keys::{self, RobotId, Topic};
 use common::msg::{
@@ -36,26 +42,42 @@ pub struct AppState {
     pub inner: Arc<Inner>,
     /// Required bearer token, if any.
     pub token: Option<String>,
+    /// The operator's background map, if given.
+    pub basemap: Option<Arc<crate::basemap::Basemap>>,
 }
 
-/// An API error: status plus `{"error": ...}`.
+/// An API error: status plus `{"error": ...}`, and the refusal's stable code when there is one
+/// (`{"error": ..., "code": "goal_in_keep_out"}`).
 #[derive(Debug)]
-pub struct ApiError(pub StatusCode, pub String);
+pub struct ApiError(pub StatusCode, pub String, pub Option<&'static str>);
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        (self.0, Json(json!({"error": self.1}))).into_response()
+        match self.2 {
+            Some(code) => (self.0, Json(json!({"error": self.1, "code": code}))).into_response(),
+            None => (self.0, Json(json!({"error": self.1}))).into_response(),
+        }
+    }
+}
+
+impl From<common::command::Refusal> for ApiError {
+    fn from(r: common::command::Refusal) -> Self {
+        ApiError(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            r.message,
+            Some(r.code.as_str()),
+        )
     }
 }
 
 fn bad(m: impl Into<String>) -> ApiError {
-    ApiError(StatusCode::BAD_REQUEST, m.into())
+    ApiError(StatusCode::BAD_REQUEST, m.into(), None)
 }
 fn not_found(m: impl Into<String>) -> ApiError {
-    ApiError(StatusCode::NOT_FOUND, m.into())
+    ApiError(StatusCode::NOT_FOUND, m.into(), None)
 }
 fn internal(m: impl std::fmt::Display) -> ApiError {
-    ApiError(StatusCode::INTERNAL_SERVER_ERROR, m.to_string())
+    ApiError(StatusCode::INTERNAL_SERVER_ERROR, m.to_string(), None)
 }
 
 type ApiResult<T> = Result<T, ApiError>;
@@ -97,6 +119,32 @@ pub fn router(state: AppState, web: Option<PathBuf>) -> Router {
         .route("/api/robots/{robot}/drive", post(cmd_drive))
         .route("/api/robots/{robot}/speed", post(cmd_speed))
         .route("/api/robots/{robot}/route", post(cmd_route))
+        .route("/api/robots/{robot}/mission", post(missions::start_run))
+        .route(
+            "/api/robots/{robot}/mission/{action}",
+            post(missions::run_action),
+        )
+        .route("/api/zones", get(zones::list).post(zones::create))
+        .route(
+            "/api/zones/{zone_id}",
+            get(zones::get_one).delete(zones::delete),
+        )
+        .route("/api/missions", get(missions::list).post(missions::create))
+        .route("/api/missions/import", post(missions::import))
+        .route("/api/missions/runs", get(missions::runs))
+        .route(
+            "/api/missions/{mission_id}",
+            get(missions::get_one)
+                .put(missions::update)
+                .delete(missions::delete),
+        )
+        .route("/api/missions/{mission_id}/gpx", get(missions::gpx))
+        .route("/api/missions/{mission_id}/geojson", get(missions::geojson))
+        .route("/api/alerts", get(alerts::list))
+        .route("/api/alerts/ack", post(alerts::ack_all))
+        .route("/api/alerts/{id}/ack", post(alerts::ack))
+        .route("/api/basemap", get(basemap::info))
+        .route("/api/basemap/{z}/{x}/{y}", get(basemap::tile))
         .route("/api/ws", get(ws))
         .fallback(|| async { not_found("no such API endpoint") })
         .layer(axum::middleware::from_fn(json_errors))
@@ -136,8 +184,12 @@ async fn auth(State(st): State<AppState>, req: Request, next: Next) -> Response 
             })
             .unwrap_or(false);
         if !(header_ok || query_ok) {
-            return ApiError(StatusCode::UNAUTHORIZED, "missing or wrong token".into())
-                .into_response();
+            return ApiError(
+                StatusCode::UNAUTHORIZED,
+                "missing or wrong token".into(),
+                None,
+            )
+            .into_response();
         }
     }
     next.run(req).await
@@ -596,6 +648,7 @@ fn known_robot(st: &AppState, robot: &str) -> ApiResult<RobotId> {
         Some(r) if !r.online => Err(ApiError(
             StatusCode::CONFLICT,
             format!("robot {robot} is offline: command not sent"),
+            Some(common::command::RefusalCode::RobotOffline.as_str()),
         )),
         Some(_) => Ok(id),
     }
@@ -671,6 +724,31 @@ pub fn goal_target(b: &GoalBody) -> Result<GoalTarget, String> {
     }
 }
 
+/// What the station knows of `robot` for the goal contract: its last pose (map frame and
+/// WGS-84) and the merged map of its datum.
+fn goal_context(st: &AppState, robot: &str) -> RobotContext {
+    let (pose, datum_id) = {
+        let f = st.inner.fleet.lock().unwrap_or_else(|p| p.into_inner());
+        f.robots
+            .get(robot)
+            .map(|r| (r.pose.clone(), r.datum_id.clone()))
+            .unwrap_or_default()
+    };
+    let mapped = datum_id.and_then(|d| {
+        let map = st.inner.map.read().unwrap_or_else(|p| p.into_inner());
+        let b = map.datums.get(&d)?.bounds_m()?;
+        Some(BoundsM {
+            min_m: (b[0], b[1]),
+            max_m: (b[2], b[3]),
+        })
+    });
+    RobotContext {
+        position_m: pose.as_ref().map(|p| (p.x_m, p.y_m)),
+        lat_lon_deg: pose.as_ref().and_then(|p| p.lat_lon_deg),
+        mapped,
+    }
+}
+
 async fn cmd_goal(
     State(st): State<AppState>,
     UrlPath(robot): UrlPath<String>,
@@ -683,11 +761,16 @@ async fn cmd_goal(
     if !(tol.is_finite() && (0.0..=100.0).contains(&tol)) {
         return Err(bad("tolerance_m must be 0-100"));
     }
+    zones::check_goal(&st, &robot, &target)?;
     let cmd = GoalCmd {
         goal_id: st.inner.goal_seq.fetch_add(1, Ordering::Relaxed),
         target,
         tolerance_m: tol,
     };
+    // The robot checks the same contract; refusing here already tells the operator at once
+    // (a swapped lat/lon would otherwise leave as "sent" and come back as a refusal later).
+    check_goal(&cmd, &CommandLimits::default(), &goal_context(&st, &robot))
+        .map_err(ApiError::from)?;
     put(&st, &id, Topic::CmdGoal, &cmd).await?;
     let sent = serde_json::to_value(&cmd).map_err(internal)?;
     st.inner.store(StoreOp::Goal {

@@ -238,6 +238,7 @@ async fn latency_bench(a: &BenchArgs) -> anyhow::Result<serde_json::Value> {
     let st = Station::start(StationOptions {
         zenoh: station::zenoh_config(None, None, std::slice::from_ref(&station_ep), &[])?,
         db: dir.join("bench.sqlite"),
+        alerts: crate::alerts::AlertConfig::default(),
     })
     .await?;
     let mut events = st.inner.events.subscribe();

@@ -14,6 +14,7 @@ use std::time::Duration;
 
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
+use common::command::{check_goal, CommandLimits, RobotContext};
 use common::keys::{self, RobotId, Topic};
 use common::msg::{self, GoalCmd, GoalTarget, Session, StopCmd};
 use zenoh::query::ConsolidationMode;
@@ -103,6 +104,54 @@ pub struct ServeArgs {
     /// Directory of the web UI (default: found next to the binary or in the working directory).
     #[arg(long)]
     pub web: Option<PathBuf>,
+    /// Operator options shared with `demo`.
+    #[command(flatten)]
+    pub ops: OpsArgs,
+}
+
+/// Options of the operator's day, shared by `serve` and `demo`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct OpsArgs {
+    /// Background map drawn under the traversability map: a folder of {z}/{x}/{y}.png|jpg
+    /// tiles (XYZ; TMS with gdal2tiles' tilemapresource.xml) or an MBTiles file. Served
+    /// locally; nothing is fetched from the network.
+    #[arg(long, value_name = "PATH")]
+    pub basemap: Option<PathBuf>,
+    /// A robot on a mission that has not come 0.5 m closer to its goal for this long raises a
+    /// "stuck" alert, seconds.
+    #[arg(long, default_value_t = 30.0)]
+    pub stuck_after_s: f64,
+}
+
+impl OpsArgs {
+    fn alerts(&self) -> anyhow::Result<crate::alerts::AlertConfig> {
+        if !(self.stuck_after_s.is_finite() && self.stuck_after_s > 0.0) {
+            bail!("--stuck-after-s must be a positive number of seconds");
+        }
+        Ok(crate::alerts::AlertConfig {
+            stuck_after_s: self.stuck_after_s,
+            ..crate::alerts::AlertConfig::default()
+        })
+    }
+
+    fn basemap(&self) -> anyhow::Result<Option<std::sync::Arc<crate::basemap::Basemap>>> {
+        self.basemap
+            .as_deref()
+            .map(|p| {
+                let b = crate::basemap::Basemap::open(p)?;
+                let i = b.info();
+                eprintln!(
+                    "basemap {}: {} tiles, zoom {}-{} ({})",
+                    p.display(),
+                    i.format,
+                    i.min_zoom,
+                    i.max_zoom,
+                    i.scheme
+                );
+                Ok(std::sync::Arc::new(b))
+            })
+            .transpose()
+    }
 }
 
 /// `demo` options.
@@ -117,16 +166,23 @@ pub struct DemoArgs {
     /// HTTP port.
     #[arg(long, default_value_t = 8080)]
     pub port: u16,
-    /// Zenoh port on 127.0.0.1 (0 = pick a free one).
-    #[arg(long, default_value_t = 0)]
-    pub zenoh_port: u16,
-    /// Database file (default: a fresh temporary one).
+    /// Zenoh port on 127.0.0.1 [default: 7447, the port `robots`, `goal` and `stop` connect
+    /// to, or a free one when 7447 is taken (the demo prints it)].
+    #[arg(long)]
+    pub zenoh_port: Option<u16>,
+    /// Database file (default: a fresh temporary one, removed when the demo ends).
     #[arg(long)]
     pub db: Option<PathBuf>,
     /// Run it secure: the fleet's PKI folder (created with the robots' certificates when it has
     /// none), Zenoh over TLS with mutual authentication and access rules, still on loopback.
     #[arg(long, value_name = "DIR")]
     pub pki: Option<PathBuf>,
+    /// Operator options shared with `serve`.
+    #[command(flatten)]
+    pub ops: OpsArgs,
+    /// Record each robot's session to MCAP in this folder (`husky-N.mcap`).
+    #[arg(long, value_name = "DIR")]
+    pub record_mcap: Option<PathBuf>,
 }
 
 /// Options of commands that talk to robots directly.
@@ -179,17 +235,34 @@ pub struct ExportArgs {
 /// Export targets.
 #[derive(Debug, Clone, Subcommand)]
 pub enum ExportWhat {
-    /// The merged map of a datum as PNG (north up).
+    /// The merged map of a datum as PNG (north up) and/or GeoTIFF (height, class and cost bands,
+    /// georeferenced; needs a GNSS datum).
     Map {
         /// Output PNG.
+        #[arg(long, required_unless_present = "geotiff")]
+        png: Option<PathBuf>,
+        /// Output GeoTIFF.
         #[arg(long)]
-        png: PathBuf,
+        geotiff: Option<PathBuf>,
         /// Datum id (default: the one with most tiles).
         #[arg(long)]
         datum: Option<String>,
         /// Pixels per cell along each side (1 = one pixel per 0.2 m cell).
         #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=8))]
         px_per_cell: u32,
+        /// Database file.
+        #[arg(long, default_value = "terranav-station.sqlite")]
+        db: PathBuf,
+    },
+    /// A session as MCAP (Foxglove, Lichtblick): poses, track, paths, goals, routes, and the
+    /// merged map of its datum as a grid and as tiles.
+    Session {
+        /// Session id.
+        #[arg(long)]
+        session: String,
+        /// Output MCAP.
+        #[arg(long)]
+        mcap: PathBuf,
         /// Database file.
         #[arg(long, default_value = "terranav-station.sqlite")]
         db: PathBuf,
@@ -334,7 +407,16 @@ pub async fn serve(a: ServeArgs) -> anyhow::Result<()> {
     )?;
     let zc = zenoh_config(&a.z, Role::Station)?;
     let web = a.web.clone().or_else(api::find_web_dir);
-    let mut running = start_station(zc, &a.db, addr, a.token.clone(), web, tls.as_ref()).await?;
+    let mut running = start_station(
+        zc,
+        &a.db,
+        addr,
+        a.token.clone(),
+        web,
+        tls.as_ref(),
+        &a.ops,
+    )
+    .await?;
     println!(
         "operator station: {}://{addr}/  (database {})",
         if tls.is_some() { "https" } else { "http" },
@@ -408,7 +490,10 @@ pub async fn start_station(
     token: Option<String>,
     web: Option<PathBuf>,
     tls: Option<&(PathBuf, PathBuf)>,
+    ops: &OpsArgs,
 ) -> anyhow::Result<Running> {
+    let alerts = ops.alerts()?;
+    let basemap = ops.basemap()?;
     enum Http {
         Plain(tokio::net::TcpListener),
         Tls(api::tls::TlsListener),
@@ -427,6 +512,7 @@ pub async fn start_station(
     let station = Station::start(StationOptions {
         zenoh: zc,
         db: db.to_path_buf(),
+        alerts,
     })
     .await
     .context("start the station")?;
@@ -437,6 +523,7 @@ pub async fn start_station(
         AppState {
             inner: station.inner.clone(),
             token,
+            basemap,
         },
         web,
     );
@@ -497,11 +584,31 @@ pub fn robot_agent_bin() -> PathBuf {
     PathBuf::from("robot-agent")
 }
 
-/// The demo's robot processes, each with what it is (`husky-1 world`).
-struct Children(Vec<(String, Child)>);
+/// The demo's robot processes, each with what it is (`husky-1 world`), and whether the robots
+/// record (then they are asked to stop first, so that their recordings close).
+struct Children(Vec<(String, Child)>, bool);
 
 impl Drop for Children {
     fn drop(&mut self) {
+        if self.1 {
+            // Recording agents are asked to stop (SIGTERM) so that they close their files with
+            // summaries; those that do not within 5 s are killed (their files still read up to
+            // the last closed chunk).
+            for (_, c) in self.0.iter().filter(|(what, _)| what.ends_with(" agent")) {
+                let _ = Command::new("kill")
+                    .args(["-TERM", &c.id().to_string()])
+                    .status();
+            }
+            let until = std::time::Instant::now() + Duration::from_secs(5);
+            while std::time::Instant::now() < until
+                && self
+                    .0
+                    .iter_mut()
+                    .any(|(what, c)| what.ends_with(" agent") && matches!(c.try_wait(), Ok(None)))
+            {
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        }
         for (_, c) in &mut self.0 {
             let _ = c.kill();
             let _ = c.wait();
@@ -536,6 +643,7 @@ async fn stop_signal() {
 /// topics on its own Zenoh endpoint (`robot-agent sim --serve-ros2`, the robot's "hardware"),
 /// and `robot-agent run` on those topics, connected to the station. The agent takes the world's
 /// datum so every robot maps in one frame, as robots sharing a site datum do.
+#[allow(clippy::too_many_arguments)] // one robot's launch line, each argument a flag of it
 fn start_robot(
     agent: &Path,
     scenario: &Path,
@@ -543,6 +651,7 @@ fn start_robot(
     seed: u32,
     start: &str,
     (station_endpoint, pki): (&str, Option<&Path>),
+    mcap: Option<PathBuf>,
     children: &mut Children,
 ) -> anyhow::Result<()> {
     use std::io::BufRead;
@@ -594,6 +703,9 @@ fn start_robot(
         // stays plain on loopback.
         run.arg("--pki").arg(dir);
     }
+    if let Some(path) = &mcap {
+        run.arg("--mcap").arg(path);
+    }
     let run = run
         .args(["--ros2-connect", &hw_endpoint, "--heading", "ros2:heading"])
         .args(["--datum", &datum, "--exit-with-parent"])
@@ -608,37 +720,62 @@ fn start_robot(
 /// Station plus simulated robots until Ctrl-C (or SIGTERM / SIGHUP).
 pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
     let addr = http_addr(None, a.port, None)?;
-    let zport = if a.zenoh_port == 0 {
-        std::net::TcpListener::bind("127.0.0.1:0")?
-            .local_addr()?
-            .port()
-    } else {
-        a.zenoh_port
-    };
+    let mut zport = demo_zenoh_port(a.zenoh_port)?;
     let secure = a.pki.is_some();
-    let endpoint = format!("{}/127.0.0.1:{zport}", if secure { "tls" } else { "tcp" });
+    let scheme = if secure { "tls" } else { "tcp" };
     let robot_ids: Vec<RobotId> = (1..=a.robots)
         .map(|i| RobotId::new(format!("husky-{i}")))
         .collect::<Result<_, _>>()?;
     if let Some(dir) = &a.pki {
         crate::pki::ensure_demo_fleet(dir, &robot_ids)?;
     }
-    let tmp = tempfile_dir()?;
-    let db = a.db.clone().unwrap_or_else(|| tmp.join("demo.sqlite"));
+    // The temporary folder (only when no --db is given) goes when the demo ends, however it
+    // ends short of SIGKILL.
+    let tmp = match &a.db {
+        Some(_) => None,
+        None => Some(TempDir(tempfile_dir()?)),
+    };
+    let db = match (&a.db, &tmp) {
+        (Some(d), _) => d.clone(),
+        (None, Some(t)) => t.0.join("demo.sqlite"),
+        (None, None) => unreachable!("a temporary folder when no --db"),
+    };
     let web = api::find_web_dir();
     if let Some(w) = &web {
         if let Some(note) = ensure_web_deps(w) {
             eprintln!("{note}");
         }
     }
-    let z = ZenohArgs {
+    let z_for = |port: u16| ZenohArgs {
         zenoh: None,
-        zenoh_listen: Some(endpoint.clone()),
+        zenoh_listen: Some(format!("{scheme}/127.0.0.1:{port}")),
         connect: None,
         pki: a.pki.clone(),
     };
-    let zc = zenoh_config(&z, Role::Station)?;
-    let mut running = start_station(zc, &db, addr, None, web, None).await?;
+    let mut z = z_for(zport);
+    let started = start_station(
+        zenoh_config(&z, Role::Station)?,
+        &db,
+        addr,
+        None,
+        web.clone(),
+        None,
+        &a.ops,
+    )
+    .await;
+    let mut running = match started {
+        Ok(r) => r,
+        // Another program took 7447 between the check and the bind: any free port will do.
+        Err(e) if a.zenoh_port.is_none() && zport == DEFAULT_ZENOH_PORT => {
+            tracing::warn!("zenoh on port {zport}: {e:#}; trying a free port");
+            zport = demo_zenoh_port(Some(0))?;
+            z = z_for(zport);
+            let zc = zenoh_config(&z, Role::Station)?;
+            start_station(zc, &db, addr, None, web, None, &a.ops).await?
+        }
+        Err(e) => return Err(e),
+    };
+    let endpoint = format!("{scheme}/127.0.0.1:{zport}");
     let agent = robot_agent_bin();
     let scenario = if a.scenario.is_file() {
         a.scenario.clone()
@@ -653,7 +790,10 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
             a.scenario.clone()
         }
     };
-    let mut children = Children(Vec::new());
+    let mut children = Children(Vec::new(), a.record_mcap.is_some());
+    if let Some(dir) = &a.record_mcap {
+        std::fs::create_dir_all(dir).with_context(|| format!("--record-mcap {}", dir.display()))?;
+    }
     for (k, id) in robot_ids.iter().enumerate() {
         let (i, robot) = (k + 1, id.to_string());
         // Distinct start poses: a row 4 m apart, all facing east.
@@ -665,14 +805,39 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
             i as u32,
             &start,
             (&endpoint, a.pki.as_deref()),
+            a.record_mcap
+                .as_ref()
+                .map(|d| d.join(format!("{robot}.mcap"))),
             &mut children,
         )?;
     }
     println!(
-        "terranav demo: open http://{addr}/  ({} simulated robots, zenoh {endpoint}{}; Ctrl-C to stop)",
-        a.robots,
+        "terranav demo: open http://{addr}/  ({} simulated robots; Ctrl-C to stop)",
+        a.robots
+    );
+    println!(
+        "  zenoh    {endpoint}{}",
         if secure {
-            ", TLS with mutual authentication"
+            " (TLS with mutual authentication)"
+        } else {
+            ""
+        }
+    );
+    let pki_arg = a
+        .pki
+        .as_ref()
+        .map(|d| format!(" --pki {}", d.display()))
+        .unwrap_or_default();
+    if zport == DEFAULT_ZENOH_PORT && !secure {
+        println!("  CLI      operator-station robots | goal --robot husky-1 --xy X,Y | stop --robot husky-1");
+    } else {
+        println!("  CLI      operator-station robots --connect {endpoint}{pki_arg}");
+    }
+    println!(
+        "  database {}{}",
+        db.display(),
+        if tmp.is_some() {
+            " (temporary: removed when the demo ends; give --db FILE to keep it)"
         } else {
             ""
         }
@@ -691,7 +856,36 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
     .await;
     drop(children);
     running.stop().await;
+    drop(tmp);
     Ok(())
+}
+
+/// The Zenoh port `robots`, `goal` and `stop` connect to by default.
+pub const DEFAULT_ZENOH_PORT: u16 = 7447;
+
+/// The demo's Zenoh port: the one asked for, else 7447 when free (so the CLI commands find the
+/// robots without options), else any free one.
+fn demo_zenoh_port(asked: Option<u16>) -> anyhow::Result<u16> {
+    if let Some(p) = asked.filter(|p| *p != 0) {
+        return Ok(p);
+    }
+    if asked.is_none() && std::net::TcpListener::bind(("127.0.0.1", DEFAULT_ZENOH_PORT)).is_ok() {
+        return Ok(DEFAULT_ZENOH_PORT);
+    }
+    Ok(std::net::TcpListener::bind("127.0.0.1:0")?
+        .local_addr()?
+        .port())
+}
+
+/// A folder removed when dropped.
+struct TempDir(PathBuf);
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        if let Err(e) = std::fs::remove_dir_all(&self.0) {
+            eprintln!("could not remove {}: {e}", self.0.display());
+        }
+    }
 }
 
 fn tempfile_dir() -> anyhow::Result<PathBuf> {
@@ -733,7 +927,15 @@ async fn robots(a: ClientArgs) -> anyhow::Result<()> {
     // Give the session time to connect and learn the routes.
     tokio::time::sleep(Duration::from_millis(300)).await;
     let wait = Duration::from_secs_f64(a.wait_s.max(0.2));
-    for id in alive_robots(&s, wait).await? {
+    let alive = alive_robots(&s, wait).await?;
+    if alive.is_empty() {
+        eprintln!(
+            "no robots answered on {} within {:.1} s (a demo on another Zenoh port? `operator-station demo` prints it; give --connect tcp/127.0.0.1:PORT)",
+            a.z.connect.as_deref().unwrap_or(DEFAULT_LISTEN_ENDPOINT),
+            wait.as_secs_f64()
+        );
+    }
+    for id in alive {
         let rid = RobotId::new(id.clone())?;
         let mut session: Option<Session> = None;
         if let Ok(replies) = s
@@ -767,7 +969,41 @@ fn parse_pair(s: &str) -> anyhow::Result<(f64, f64)> {
     Ok((a, b))
 }
 
-/// Sends `cmd` to a robot that is online, in its envelope (this call's own sender id).
+/// A session that has seen `robot` online.
+async fn robot_session(c: &ClientArgs, robot: &str) -> anyhow::Result<zenoh::Session> {
+    let s = client_session(&c.z).await?;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let alive = alive_robots(&s, Duration::from_secs_f64(c.wait_s.max(0.2))).await?;
+    if !alive.iter().any(|r| r == robot) {
+        let _ = s.close().await;
+        bail!(
+            "robot {robot} is not online on {} (seen: {alive:?}; a demo on another Zenoh port? give --connect tcp/127.0.0.1:PORT)",
+            c.z.connect.as_deref().unwrap_or(DEFAULT_LISTEN_ENDPOINT)
+        );
+    }
+    Ok(s)
+}
+
+/// Sends one command in its envelope (this call's own sender id) and closes the session.
+async fn put_and_close<T: serde::Serialize>(
+    s: zenoh::Session,
+    rid: &RobotId,
+    topic: Topic,
+    cmd: &T,
+) -> anyhow::Result<()> {
+    let stamper = common::command::CommandStamper::new(station::sender_id(&s));
+    let payload = msg::encode_cmd(stamper.next(station::now_unix_ms()), cmd);
+    let r = s
+        .put(keys::key(rid, topic), payload)
+        .congestion_control(zenoh::qos::CongestionControl::Block)
+        .await
+        .map_err(|e| anyhow::anyhow!("zenoh put: {e}"));
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let _ = s.close().await;
+    r
+}
+
+/// Sends `cmd` to a robot that is online.
 async fn send_to_robot<T: serde::Serialize>(
     c: &ClientArgs,
     robot: &str,
@@ -775,22 +1011,27 @@ async fn send_to_robot<T: serde::Serialize>(
     cmd: &T,
 ) -> anyhow::Result<()> {
     let rid = RobotId::new(robot)?;
-    let s = client_session(&c.z).await?;
-    let stamper = common::command::CommandStamper::new(station::sender_id(&s));
-    let payload = msg::encode_cmd(stamper.next(station::now_unix_ms()), cmd);
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    let alive = alive_robots(&s, Duration::from_secs_f64(c.wait_s.max(0.2))).await?;
-    if !alive.iter().any(|r| r == robot) {
-        let _ = s.close().await;
-        bail!("robot {robot} is not online (seen: {alive:?})");
+    let s = robot_session(c, robot).await?;
+    put_and_close(s, &rid, topic, cmd).await
+}
+
+/// The robot's position from one of its poses (it publishes them at 10 Hz), for the goal
+/// contract; empty when none comes within a second.
+async fn robot_context(s: &zenoh::Session, rid: &RobotId) -> RobotContext {
+    let Ok(sub) = s.declare_subscriber(keys::key(rid, Topic::Pose)).await else {
+        return RobotContext::default();
+    };
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(1);
+    while let Ok(Ok(sample)) = tokio::time::timeout_at(deadline, sub.recv_async()).await {
+        if let Ok(p) = msg::decode::<msg::Pose>(&sample.payload().to_bytes()) {
+            return RobotContext {
+                position_m: Some((p.x_m, p.y_m)),
+                lat_lon_deg: p.lat_lon_deg,
+                mapped: None,
+            };
+        }
     }
-    s.put(keys::key(&rid, topic), payload)
-        .congestion_control(zenoh::qos::CongestionControl::Block)
-        .await
-        .map_err(|e| anyhow::anyhow!("zenoh put: {e}"))?;
-    tokio::time::sleep(Duration::from_millis(200)).await;
-    let _ = s.close().await;
-    Ok(())
+    RobotContext::default()
 }
 
 async fn goal(a: GoalArgs) -> anyhow::Result<()> {
@@ -817,7 +1058,15 @@ async fn goal(a: GoalArgs) -> anyhow::Result<()> {
         target,
         tolerance_m: 0.0,
     };
-    send_to_robot(&a.client, &a.robot, Topic::CmdGoal, &cmd).await?;
+    let rid = RobotId::new(&a.robot)?;
+    let s = robot_session(&a.client, &a.robot).await?;
+    // The same contract the robot and the HTTP API apply: refused here, nothing is sent.
+    let ctx = robot_context(&s, &rid).await;
+    if let Err(r) = check_goal(&cmd, &CommandLimits::default(), &ctx) {
+        let _ = s.close().await;
+        bail!("goal refused: {} [{}]", r.message, r.code.as_str());
+    }
+    put_and_close(s, &rid, Topic::CmdGoal, &cmd).await?;
     println!(
         "{}",
         serde_json::json!({"ok": true, "robot": a.robot, "sent": cmd})
@@ -839,8 +1088,14 @@ async fn stop(a: StopArgs) -> anyhow::Result<()> {
 
 fn export(a: ExportArgs) -> anyhow::Result<()> {
     match a.what {
+        ExportWhat::Session { session, mcap, db } => {
+            let c = open_existing(&db)?;
+            let e = crate::export::mcap::export_session(&c, &session, &mcap)?;
+            println!("{}", serde_json::to_string(&e)?);
+        }
         ExportWhat::Map {
             png,
+            geotiff,
             datum,
             px_per_cell,
             db,
@@ -869,11 +1124,35 @@ fn export(a: ExportArgs) -> anyhow::Result<()> {
                     datums.iter().map(|d| &d.datum_id).collect::<Vec<_>>()
                 )
             })?;
-            let bytes = crate::merge::datum_png_scaled(dm, px_per_cell).context("empty map")?;
-            std::fs::write(&png, bytes).with_context(|| format!("write {}", png.display()))?;
+            if let Some(png) = &png {
+                let bytes = crate::merge::datum_png_scaled(dm, px_per_cell).context("empty map")?;
+                std::fs::write(png, bytes).with_context(|| format!("write {}", png.display()))?;
+            }
+            let mut geo = None;
+            if let Some(out) = &geotiff {
+                let row = datums
+                    .iter()
+                    .find(|d| d.datum_id == pick)
+                    .with_context(|| format!("datum {pick} is not in the database"))?;
+                let (Some(lat_deg), Some(lon_deg)) = (row.lat_deg, row.lon_deg) else {
+                    bail!(
+                        "datum {pick} is a local (SLAM-only) frame: a GeoTIFF needs a GNSS datum"
+                    );
+                };
+                let d = msg::Datum {
+                    lat_deg,
+                    lon_deg,
+                    h_m: row.h_m.unwrap_or(0.0),
+                };
+                let f = std::fs::File::create(out)
+                    .with_context(|| format!("create {}", out.display()))?;
+                let info = crate::export::geotiff::write(dm, &d, &pick, std::io::BufWriter::new(f))
+                    .with_context(|| format!("write {}", out.display()))?;
+                geo = Some(info);
+            }
             println!(
                 "{}",
-                serde_json::json!({"datum_id": pick, "tiles": dm.tiles.len(), "bounds_m": dm.bounds_m(), "png": png})
+                serde_json::json!({"datum_id": pick, "tiles": dm.tiles.len(), "bounds_m": dm.bounds_m(), "png": png, "geotiff": geotiff, "raster": geo})
             );
         }
         ExportWhat::Track {

@@ -25,7 +25,7 @@ pub enum StoreError {
 }
 
 /// Current schema version (`PRAGMA user_version`).
-pub const SCHEMA_VERSION: i64 = 1;
+pub const SCHEMA_VERSION: i64 = 2;
 
 const MIGRATIONS: &[&str] = &[
     // 0 -> 1
@@ -49,6 +49,11 @@ const MIGRATIONS: &[&str] = &[
      CREATE TABLE tiles (
         datum_id TEXT NOT NULL, tx INTEGER NOT NULL, ty INTEGER NOT NULL, version INTEGER NOT NULL,
         data BLOB NOT NULL, PRIMARY KEY (datum_id, tx, ty));",
+    // 1 -> 2: the operator's zones, missions and alerts (JSON of `zones::ZoneRecord`,
+    // `missions::Mission`, `alerts::Alert`).
+    "CREATE TABLE zones (zone_id TEXT PRIMARY KEY, json TEXT NOT NULL);
+     CREATE TABLE alerts (id INTEGER PRIMARY KEY, json TEXT NOT NULL);
+     CREATE TABLE missions (mission_id TEXT PRIMARY KEY, name TEXT NOT NULL, saved_unix_ms INTEGER NOT NULL, json TEXT NOT NULL);",
 ];
 
 /// Opens (creating and migrating) a database with WAL and a busy timeout.
@@ -200,6 +205,35 @@ pub enum StoreOp {
         /// Encoded tile.
         data: Vec<u8>,
     },
+    /// Insert or replace a zone (`zones::ZoneRecord` JSON).
+    Zone {
+        /// Id.
+        zone_id: String,
+        /// JSON.
+        json: String,
+    },
+    /// Delete a zone.
+    DeleteZone(String),
+    /// Insert or replace a mission (`missions::Mission` JSON).
+    Mission {
+        /// Id.
+        mission_id: String,
+        /// Name.
+        name: String,
+        /// Unix ms.
+        saved_unix_ms: u64,
+        /// JSON.
+        json: String,
+    },
+    /// Delete a mission.
+    DeleteMission(String),
+    /// Insert or replace an alert (`alerts::Alert` JSON).
+    Alert {
+        /// Id.
+        id: u64,
+        /// JSON.
+        json: String,
+    },
     /// Commit now and acknowledge (tests, shutdown).
     Flush(mpsc::Sender<()>),
     /// Commit and stop the writer thread.
@@ -306,6 +340,35 @@ fn apply(tx: &rusqlite::Transaction<'_>, op: &StoreOp) -> rusqlite::Result<()> {
             tx.execute(
                 "INSERT OR REPLACE INTO tiles VALUES (?1, ?2, ?3, ?4, ?5)",
                 params![datum_id, x, ty, *version as i64, data],
+            )?;
+        }
+        StoreOp::Zone { zone_id, json } => {
+            tx.execute(
+                "INSERT OR REPLACE INTO zones VALUES (?1, ?2)",
+                params![zone_id, json],
+            )?;
+        }
+        StoreOp::DeleteZone(id) => {
+            tx.execute("DELETE FROM zones WHERE zone_id = ?1", params![id])?;
+        }
+        StoreOp::Mission {
+            mission_id,
+            name,
+            saved_unix_ms,
+            json,
+        } => {
+            tx.execute(
+                "INSERT OR REPLACE INTO missions VALUES (?1, ?2, ?3, ?4)",
+                params![mission_id, name, *saved_unix_ms as i64, json],
+            )?;
+        }
+        StoreOp::DeleteMission(id) => {
+            tx.execute("DELETE FROM missions WHERE mission_id = ?1", params![id])?;
+        }
+        StoreOp::Alert { id, json } => {
+            tx.execute(
+                "INSERT OR REPLACE INTO alerts VALUES (?1, ?2)",
+                params![*id as i64, json],
             )?;
         }
         StoreOp::Flush(_) | StoreOp::Shutdown => {}
@@ -487,6 +550,46 @@ pub fn track(c: &Connection, session_id: &str) -> Result<Vec<(u64, f64, f64, f64
     Ok(rows)
 }
 
+/// The paths a session published: (t_unix_ms, goal_id, `Path` JSON), oldest first.
+pub fn paths(c: &Connection, session_id: &str) -> Result<Vec<(u64, u32, String)>, StoreError> {
+    let mut st = c.prepare(
+        "SELECT t_unix_ms, goal_id, json FROM paths WHERE session_id = ?1 ORDER BY t_unix_ms",
+    )?;
+    let rows = st
+        .query_map(params![session_id], |r| {
+            Ok((r.get::<_, i64>(0)? as u64, r.get(1)?, r.get(2)?))
+        })?
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(rows)
+}
+
+/// The goals sent to `robot` within `[t0, t1]` Unix ms: (t_unix_ms, goal_id, `GoalCmd` JSON).
+pub fn goals(
+    c: &Connection,
+    robot: &str,
+    t0_unix_ms: u64,
+    t1_unix_ms: u64,
+) -> Result<Vec<(u64, u32, String)>, StoreError> {
+    let mut st = c.prepare(
+        "SELECT t_unix_ms, goal_id, json FROM goals WHERE robot = ?1 AND t_unix_ms BETWEEN ?2 AND ?3 ORDER BY t_unix_ms, id",
+    )?;
+    let rows = st
+        .query_map(params![robot, t0_unix_ms as i64, t1_unix_ms as i64], |r| {
+            Ok((r.get::<_, i64>(0)? as u64, r.get(1)?, r.get(2)?))
+        })?
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(rows)
+}
+
+/// The routes taught in a session: `Route` JSON.
+pub fn session_routes(c: &Connection, session_id: &str) -> Result<Vec<String>, StoreError> {
+    let mut st = c.prepare("SELECT json FROM routes WHERE session_id = ?1 ORDER BY route_id")?;
+    let rows = st
+        .query_map(params![session_id], |r| r.get(0))?
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(rows)
+}
+
 /// Route summaries.
 pub fn routes(c: &Connection) -> Result<Vec<RouteRow>, StoreError> {
     let mut st = c.prepare(
@@ -516,6 +619,35 @@ pub fn route_json(c: &Connection, route_id: &str) -> Result<Option<String>, Stor
         |r| r.get(0),
     )
     .optional()?)
+}
+
+/// Every stored zone's JSON.
+pub fn zones(c: &Connection) -> Result<Vec<String>, StoreError> {
+    let mut st = c.prepare("SELECT json FROM zones ORDER BY zone_id")?;
+    let rows = st
+        .query_map([], |r| r.get(0))?
+        .collect::<Result<Vec<String>, _>>()?;
+    Ok(rows)
+}
+
+/// The newest `limit` stored alerts' JSON, oldest first.
+pub fn alerts(c: &Connection, limit: usize) -> Result<Vec<String>, StoreError> {
+    let mut st = c.prepare(
+        "SELECT json FROM (SELECT id, json FROM alerts ORDER BY id DESC LIMIT ?1) ORDER BY id",
+    )?;
+    let rows = st
+        .query_map(params![limit as i64], |r| r.get(0))?
+        .collect::<Result<Vec<String>, _>>()?;
+    Ok(rows)
+}
+
+/// Every stored mission's JSON, newest first.
+pub fn missions(c: &Connection) -> Result<Vec<String>, StoreError> {
+    let mut st = c.prepare("SELECT json FROM missions ORDER BY saved_unix_ms DESC, mission_id")?;
+    let rows = st
+        .query_map([], |r| r.get(0))?
+        .collect::<Result<Vec<String>, _>>()?;
+    Ok(rows)
 }
 
 #[cfg(test)]

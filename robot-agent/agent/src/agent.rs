@@ -24,6 +24,7 @@ use crate::mission::teach_view::TeachView;
 use crate::mission::{Event, MissionMachine, Mode, Outcome, Phase, Repeat};
 use crate::status::{AgentStatus, PoseEstimate, RouteProgress};
 use crate::terrain::TerrainMap;
+use crate::zones::ZoneMap;
 use common::command::{Refusal, RefusalCode};
 use common::grid::{Lattice, Tile, TileIndex};
 use common::msg::Datum;
@@ -80,7 +81,16 @@ pub struct Agent {
     pose_trusted: bool,
     base_from_depth: nalgebra::Isometry3<f64>,
     depth_frames: u64,
+    /// Keep-out and slow zones in the map frame.
+    zones: ZoneMap,
+    /// How far keep-out cells reach beyond a zone's edge: half the body's width and a margin
+    /// for the follower, metres.
+    keep_out_margin_m: f64,
 }
+
+/// Clearance kept between the body's side and a keep-out zone's edge, metres: pure pursuit cuts
+/// corners by a few centimetres, and a zone is a line the body must not cross.
+const KEEP_OUT_CLEARANCE_M: f64 = 0.2;
 
 impl Agent {
     /// A new agent for one session.
@@ -109,6 +119,8 @@ impl Agent {
             pose_trusted: false,
             base_from_depth: cfg.profile.depth_camera.isometry(),
             depth_frames: 0,
+            zones: ZoneMap::default(),
+            keep_out_margin_m: 0.5 * cfg.profile.width_m + KEEP_OUT_CLEARANCE_M,
             cfg,
             id,
         })
@@ -173,7 +185,7 @@ impl Agent {
         if let Some(shift) = update.shift {
             self.terrain.follow_frame(&shift);
         }
-        // Re-evaluate a GNSS goal with each new fix (methods.md §5).
+        // Re-evaluate a GNSS goal with each new fix (docs/algorithms.md §5.2).
         if let (Some(fix), Some(pose)) = (self.localiser.fix(t_s), self.localiser.pose_now()) {
             let freeze = self.localiser.gnss_config().goal_freeze_distance_m;
             if let Some(goal) = self.mission.nav_mut().goal_mut() {
@@ -187,8 +199,17 @@ impl Agent {
 
     /// Processes one LiDAR sweep: localisation, mapping, the safety check, the path check.
     pub fn on_scan(&mut self, scan: &Scan) -> ScanReport {
+        self.on_scan_probed(scan, &mut crate::NoProbe)
+    }
+
+    /// [`Agent::on_scan`], marking the end of each stage on `probe` (how the pipeline bench
+    /// times the stages without the agent reading a clock).
+    pub fn on_scan_probed(&mut self, scan: &Scan, probe: &mut dyn crate::Probe) -> ScanReport {
+        use crate::Stage;
         let mut rep = ScanReport::default();
-        let loc = match self.localiser.on_scan(scan) {
+        let loc = self.localiser.on_scan(scan);
+        probe.mark(Stage::Localise);
+        let loc = match loc {
             Ok(l) => l,
             Err(e) => {
                 rep.slam_failed = true;
@@ -228,6 +249,7 @@ impl Agent {
                 loc.jump_m
             );
         }
+        probe.mark(Stage::Map);
         // The safety stop judges the raw sweep, in base_link.
         let base_from_lidar = *self.localiser.base_from_lidar();
         self.driver.on_sweep(
@@ -241,12 +263,11 @@ impl Agent {
         );
         // A grid change on the path asks for a replan now.
         if self.path_dirty && self.mission.nav().is_driving() {
-            let grid = self
-                .terrain
-                .plan_grid(&loc.pose.planar, self.driver.lasting_stop_m());
+            let grid = self.plan_grid(&loc.pose.planar);
             rep.path_blocked = self.mission.nav_mut().check_path(&grid, &loc.pose.planar);
             self.path_dirty = false;
         }
+        probe.mark(Stage::Safety);
         rep
     }
 
@@ -304,9 +325,21 @@ impl Agent {
 
     /// One command; a refusal is counted, shown in the status and logged here (once).
     pub fn on_command(&mut self, cmd: Command) -> Result<(), Refusal> {
+        let kind = cmd.kind.name();
         let r = self.command(cmd);
-        if let Err(e) = &r {
-            self.count_refusal(e);
+        match &r {
+            Err(e) => self.count_refusal(e),
+            // A refusal of this kind of command is history once one is accepted: an operator
+            // whose next goal was taken must not keep reading that the last one was refused.
+            Ok(()) => {
+                if self
+                    .last_error
+                    .as_deref()
+                    .is_some_and(|e| e.starts_with(&format!("{kind}:")))
+                {
+                    self.last_error = None;
+                }
+            }
         }
         r
     }
@@ -363,6 +396,39 @@ impl Agent {
             CommandKind::Pause => Event::Pause,
             CommandKind::Resume => Event::Resume,
             CommandKind::Cancel => Event::Cancel,
+            CommandKind::Zones {
+                version,
+                session_id,
+                zones,
+            } => {
+                if session_id != self.id.session_id {
+                    return Err(refusal(
+                        RefusalCode::ZoneFrameMismatch,
+                        "zones",
+                        format!(
+                            "zone set {version} is for session {session_id}, this is {}",
+                            self.id.session_id
+                        ),
+                    ));
+                }
+                if version < self.zones.version {
+                    // Only a station may send zones (the access rules), but an old set captured
+                    // and sent again must not lift keep-out zones drawn since.
+                    return Err(refusal(
+                        RefusalCode::Replayed,
+                        "zones",
+                        format!(
+                            "zone set {version} is older than the set {} in force",
+                            self.zones.version
+                        ),
+                    ));
+                }
+                tracing::info!("zones: set {version}, {} zones", zones.len());
+                self.zones = ZoneMap { version, zones };
+                // The path in hand may cross a new keep-out zone: check it with the next sweep.
+                self.path_dirty = true;
+                return Ok(());
+            }
         };
         match self.mission.transition(event) {
             Ok(Outcome::Done) => Ok(()),
@@ -416,6 +482,7 @@ impl Agent {
                 (g.goal_map, Some(g))
             }
         };
+        self.zones.check_goal(goal_map)?;
         Ok(Goal {
             id,
             goal_map,
@@ -550,28 +617,40 @@ impl Agent {
         if !self.mission.nav().wants_replan(t_s) {
             return false;
         }
-        let grid = self
-            .terrain
-            .plan_grid(&pose.planar, self.driver.lasting_stop_m());
+        let grid = self.plan_grid(&pose.planar);
         self.mission.nav_mut().replan(t_s, &pose.planar, &grid);
         true
+    }
+
+    /// The planning grid around `pose`: the terrain's, a lasting stop, the keep-out zones.
+    fn plan_grid(&self, pose: &common::geom::Pose2) -> planning::PlanGrid {
+        let mut grid = self.terrain.plan_grid(pose, self.driver.lasting_stop_m());
+        self.zones
+            .stamp_keep_out(&mut grid, self.keep_out_margin_m, (pose.x_m, pose.y_m));
+        grid
     }
 
     /// One repeat cycle: the route ahead checked against the corridor, detours planned.
     fn repeat_cycle(&mut self, t_s: f64, pose: &PoseMap) {
         let stop_m = self.driver.lasting_stop_m();
         let (window, view) = self.terrain.window(&pose.planar);
-        let grid = self
+        let mut grid = self
             .terrain
             .plan_grid_in(&pose.planar, &window, &view, stop_m);
+        let robot = (pose.planar.x_m, pose.planar.y_m);
+        self.zones
+            .stamp_keep_out(&mut grid, self.keep_out_margin_m, robot);
         let Some(r) = self.mission.repeat_mut() else {
             return;
         };
         // A stop that lasts is a blockage of the route (the person will not move while the
-        // robot is in the way): wait, then detour round it, like any other.
-        let corridor = self
+        // robot is in the way): wait, then detour round it, like any other. A keep-out zone
+        // across the route is one too.
+        let mut corridor = self
             .terrain
             .corridor_grid(&window, &view, r.view.as_ref(), stop_m);
+        self.zones
+            .stamp_keep_out(&mut corridor, self.keep_out_margin_m, robot);
         // Blocked points whose cells are worth a log line.
         let mut explain: Vec<(f64, f64)> = Vec::new();
         let f = &mut r.follower;
@@ -645,6 +724,8 @@ impl Agent {
             }
         }
         let stop_ahead = self.driver.stop_ahead(t_s);
+        let cap = self.zone_cap(&pose.planar);
+        self.driver.set_zone_cap(cap);
         let cmd = match self.mission.mode() {
             Mode::Teleop | Mode::Teach => {
                 self.driver.teleop(t_s, self.mission.teleop(), stop_ahead)
@@ -680,6 +761,22 @@ impl Agent {
         cmd
     }
 
+    /// The slow-zone cap at `pose`: zones within the distance needed to slow down from the
+    /// speed limit to the cap (and half the body length) count, so the robot is slow on entry.
+    fn zone_cap(&self, pose: &common::geom::Pose2) -> Option<f64> {
+        let v = self.driver.speed_limit_mps();
+        let decel = self.cfg.control.goal_decel_mps2.max(0.1);
+        let lead = 0.5 * self.cfg.profile.length_m + v * v / (2.0 * decel);
+        self.zones
+            .speed_cap((pose.x_m, pose.y_m), lead)
+            .map(|(cap, _)| cap)
+    }
+
+    /// The zones in force.
+    pub fn zones(&self) -> &ZoneMap {
+        &self.zones
+    }
+
     // ---- what the agent tells the world ----
 
     /// The pose estimate for now.
@@ -703,7 +800,24 @@ impl Agent {
             .pose_now()
             .map(|p| p.planar)
             .unwrap_or_default();
-        let (phase, reason) = self.mission.phase(self.driver.safety().stop);
+        let (mut phase, mut reason) = self.mission.phase(self.driver.safety().stop);
+        // An operator's drive is in force only while the deadman is held and fresh; after the
+        // keys are released the robot stands, and must not read "Driving".
+        let driving = self
+            .mission
+            .teleop()
+            .is_some_and(|d| d.deadman && t_s - d.t_s <= self.cfg.deadman_s);
+        if matches!(self.mission.mode(), Mode::Teleop | Mode::Teach) && !driving {
+            phase = Phase::Idle;
+            reason = "teleop: standing (no drive held)".into();
+        }
+        let here = (pose.x_m, pose.y_m);
+        let lead = 0.5 * self.cfg.profile.length_m;
+        let zone = self.zones.note(
+            here,
+            self.keep_out_margin_m,
+            self.zones.speed_cap(here, lead),
+        );
         let route = self.mission.repeat().map(|r| {
             let (k, n, left) = r.follower.progress(&pose);
             RouteProgress {
@@ -716,18 +830,29 @@ impl Agent {
             }
         });
         let nav = self.mission.nav();
+        // A goal that failed or was reached stays in the status (where, which id), so the
+        // operator sees where the robot gave up and a mission runner which goal ended.
+        let goal = nav.goal().or(match phase {
+            Phase::NoPath | Phase::Reached if self.mission.mode() != Mode::Repeat => {
+                nav.last_goal()
+            }
+            _ => None,
+        });
         AgentStatus {
             t_s,
             mode: self.mission.mode(),
-            driving: self.mission.teleop().is_some(),
+            driving,
             phase,
             reason,
-            goal_m: nav.goal().map(|g| g.goal_map),
-            goal_id: nav.goal().map_or(0, |g| g.id),
+            goal_m: goal.map(|g| g.goal_map),
+            goal_id: goal.map_or(0, |g| g.id),
             fix: self.localiser.fix_kind(t_s),
             gnss_lost: self.localiser.gnss_lost(t_s),
             slam: self.localiser.health().clone(),
             speed_limit_mps: self.driver.speed_limit_mps(),
+            speed_max_mps: self.cfg.control.v_max_mps,
+            zones_version: self.zones.version,
+            zone,
             recording: self.mission.recording(),
             route,
             last_error: self.last_error.clone(),

@@ -4,9 +4,10 @@
 
 use common::command::{Refusal, RefusalCode};
 use common::msg::Datum;
+use serde::{Deserialize, Serialize};
 
 /// A command with the time it arrived, seconds on the agent's clock.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Command {
     /// Arrival time, seconds (the same clock as the sensor data).
     pub t_s: f64,
@@ -22,7 +23,7 @@ impl Command {
 }
 
 /// Where a goal is.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub enum GoalTarget {
     /// In the map frame, metres.
     Map {
@@ -43,7 +44,7 @@ pub enum GoalTarget {
 }
 
 /// Direction of a repeat.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Direction {
     /// Back to where the route was taught from (return home).
     Reverse,
@@ -52,7 +53,7 @@ pub enum Direction {
 }
 
 /// One taught waypoint.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RoutePoint {
     /// Map x, metres.
     pub x_m: f64,
@@ -71,7 +72,7 @@ pub struct RoutePoint {
 }
 
 /// A taught route.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TaughtRoute {
     /// Route id.
     pub route_id: String,
@@ -87,8 +88,9 @@ pub struct TaughtRoute {
     pub points: Vec<RoutePoint>,
 }
 
-/// The commands the agent understands.
-#[derive(Clone, Debug, PartialEq)]
+/// The commands the agent understands (as JSON: tagged by `kind`, in a recording).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
 pub enum CommandKind {
     /// Go to a goal.
     Goal {
@@ -140,6 +142,15 @@ pub enum CommandKind {
     Resume,
     /// Cancel a repeat.
     Cancel,
+    /// The zones to obey from now on (replaces the set in force).
+    Zones {
+        /// The station's version of the set.
+        version: u64,
+        /// The session whose map frame the polygons are in.
+        session_id: String,
+        /// The zones, in the map frame.
+        zones: Vec<crate::zones::ZoneShape>,
+    },
 }
 
 impl CommandKind {
@@ -156,6 +167,7 @@ impl CommandKind {
             | CommandKind::Pause
             | CommandKind::Resume
             | CommandKind::Cancel => "route",
+            CommandKind::Zones { .. } => "zones",
         }
     }
 }

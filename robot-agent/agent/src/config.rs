@@ -1,5 +1,5 @@
-//! The agent's configuration: one struct of the parts' own configurations (each part receives
-//! only its own), every value with the methods.md default in code. The robot agent's binary
+//! The agent's configuration: one struct of the parts' own configurations (each part receives only
+//! its own), every value with its default in code (docs/algorithms.md). The robot agent's binary
 //! reads them from the TOML files in `config/`.
 
 use crate::localiser::gnss::GnssConfig;

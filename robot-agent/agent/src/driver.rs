@@ -1,13 +1,14 @@
 //! The driver: turns a path or an operator's drive into a velocity command, under the safety
 //! gate.
 //!
-//! Two pure-pursuit followers (methods.md §6): one for planned paths, and the same controller
-//! tuned for taught routes (shorter look-ahead, earlier turn in place). Every command passes the
-//! gate: while the last sweep puts something in the stop zone, or the last sweep is older than
-//! `safety_scan_timeout_s` (a stale sweep cannot vouch for the space ahead), forward motion is
-//! zeroed; turning in place stays allowed unless something stands where the body's corners
-//! would sweep. A stop that holds for `safety_stop_block_s` is remembered with where it stands,
-//! so the planner can treat it as a blockage ([`crate::terrain::layers::stamp_blocked_disc`]).
+//! Two pure-pursuit followers (docs/algorithms.md §6): one for planned paths, and the same
+//! controller tuned for taught routes (shorter look-ahead, earlier turn in place). Every command
+//! passes the gate: while the last sweep puts something in the stop zone, or the last sweep is
+//! older than `safety_scan_timeout_s` (a stale sweep cannot vouch for the space ahead), forward
+//! motion is zeroed; turning in place stays allowed unless something stands where the body's
+//! corners would sweep. A stop that holds for `safety_stop_block_s` is remembered with where it
+//! stands, so the planner can treat it as a blockage
+//! ([`crate::terrain::layers::stamp_blocked_disc`]).
 
 use crate::localiser::PoseMap;
 use common::geom::Pose2;
@@ -77,6 +78,8 @@ pub struct Driver {
     /// space ahead (low obstacles under the LiDAR's lowest beam).
     depth_safety: Option<(control::SafetyVerdict, f64)>,
     last_cmd: Cmd,
+    /// A slow zone's cap in force, m/s.
+    zone_cap_mps: Option<f64>,
 }
 
 impl Driver {
@@ -96,6 +99,7 @@ impl Driver {
             lasting_stop: None,
             depth_safety: None,
             last_cmd: Cmd::default(),
+            zone_cap_mps: None,
             cfg,
         }
     }
@@ -159,16 +163,28 @@ impl Driver {
         self.speed_limit_mps = v_mps.clamp(0.0, self.cfg.control.v_max_mps);
     }
 
-    /// The speed limit in force, m/s.
+    /// The operator's speed limit, m/s.
     pub fn speed_limit_mps(&self) -> f64 {
         self.speed_limit_mps
+    }
+
+    /// Caps the speed while a slow zone acts on the robot (None: no zone).
+    pub fn set_zone_cap(&mut self, cap_mps: Option<f64>) {
+        self.zone_cap_mps = cap_mps.filter(|c| c.is_finite() && *c >= 0.0);
+    }
+
+    /// The speed the driver allows now: the operator's limit, under a slow zone's cap, m/s.
+    pub fn limit_now_mps(&self) -> f64 {
+        self.zone_cap_mps
+            .map_or(self.speed_limit_mps, |c| c.min(self.speed_limit_mps))
     }
 
     /// The operator's drive, while the deadman is held and fresh; forward motion gated.
     pub fn teleop(&self, t_s: f64, drive: Option<&Teleop>, stop_ahead: bool) -> Cmd {
         match drive {
             Some(d) if d.deadman && t_s - d.t_s <= self.cfg.deadman_s => {
-                let v = d.v_mps.clamp(-self.speed_limit_mps, self.speed_limit_mps);
+                let limit = self.limit_now_mps();
+                let v = d.v_mps.clamp(-limit, limit);
                 Cmd {
                     v_mps: if stop_ahead && v > 0.0 { 0.0 } else { v },
                     omega_rps: d.omega_rps,
@@ -197,7 +213,7 @@ impl Driver {
         let c = follower.command(
             pose,
             path,
-            self.speed_limit_mps,
+            self.limit_now_mps(),
             self.safety.clearance_m,
             to_end,
         );
@@ -277,6 +293,9 @@ mod tests {
             deadman: true,
         };
         assert_eq!(d.teleop(10.1, Some(&t), false).v_mps, 0.3);
+        d.set_zone_cap(Some(0.2));
+        assert_eq!(d.teleop(10.1, Some(&t), false).v_mps, 0.2, "slow zone");
+        d.set_zone_cap(None);
         assert_eq!(d.teleop(10.4, Some(&t), false), Cmd::default(), "deadman");
         assert_eq!(d.teleop(10.1, Some(&t), true).v_mps, 0.0, "gated");
         assert_eq!(

@@ -6,6 +6,7 @@
 //!   (footprint clearing, lasting-stop stamp, taught corridor) as pure functions.
 //! - [`mission`]: one state machine (`Idle | Goal | Teleop | Teach | Repeat`) and the missions.
 //! - [`driver`]: the path followers and the safety gate.
+//! - [`zones`]: keep-out and slow zones: the planning layer, goal refusal, speed caps.
 //! - [`Agent`]: the orchestrator over them; [`command`] and [`status`] are its own input and
 //!   output types (the robot agent's bus translates them to and from the wire).
 //!
@@ -14,17 +15,22 @@
 #![deny(missing_docs)]
 
 mod agent;
+#[cfg(test)]
+mod agent_tests;
 pub mod command;
 pub mod config;
 pub mod driver;
 pub mod localiser;
 pub mod mission;
+pub mod probe;
 pub mod status;
 pub mod terrain;
+pub mod zones;
 
 pub use agent::{Agent, Identity, ScanReport};
 pub use command::{Command, CommandKind};
 pub use config::{AgentConfig, MissionFile};
 pub use driver::Cmd;
 pub use localiser::PoseMap;
+pub use probe::{NoProbe, Probe, Stage};
 pub use status::{AgentStatus, PoseEstimate};

@@ -62,6 +62,12 @@ pub struct AgentStatus {
     pub slam: SlamHealth,
     /// Speed limit in force, m/s.
     pub speed_limit_mps: f64,
+    /// The controller's own top speed, m/s.
+    pub speed_max_mps: f64,
+    /// Version of the zone set in force (0: none).
+    pub zones_version: u64,
+    /// The zone acting on the robot now, for humans.
+    pub zone: Option<String>,
     /// A route is being recorded.
     pub recording: bool,
     /// Route progress while repeating.

@@ -1,9 +1,10 @@
 //! Pure pursuit: a target point one look-ahead distance along the path, an arc through it.
 //!
 //! With the target at lateral offset `dy` in the robot frame, the arc radius is
-//! `R = d_l^2 / (2 dy)` and `omega = K_p v / R` (methods.md §6). Speed is limited by `v_max`,
-//! by the operator's limit, by curvature (`|omega| <= omega_max` forces `v <= omega_max R`), by
-//! the clearance to the nearest obstacle, and by the distance left to the goal.
+//! `R = d_l^2 / (2 dy)` and `omega = K_p v / R` (docs/algorithms.md §6.1). Speed is limited by
+//! `v_max`, by the operator's limit, by curvature (`|omega| <= omega_max` forces
+//! `v <= omega_max R`), by the clearance to the nearest obstacle, and by the distance left to the
+//! goal.
 
 use crate::safety::SafetyConfig;
 use common::geom::{wrap_angle, Pose2};

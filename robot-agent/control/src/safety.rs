@@ -1,5 +1,5 @@
-//! The safety stop (methods.md §6): raw scan points too close to the robot body stop it at
-//! once, whatever the plan says; rotating in place stays allowed.
+//! The safety stop (docs/algorithms.md §6.2): raw scan points too close to the robot body stop it
+//! at once, whatever the plan says; rotating in place stays allowed.
 
 use serde::Deserialize;
 

@@ -121,6 +121,10 @@ pub struct NavFix {
     pub status: FixStatus,
     /// Position covariance, ENU, row-major, m²; `None` when unknown.
     pub covariance_m2: Option<[f64; 9]>,
+    /// The receiver's GGA quality (1 GPS, 2 DGPS, 4 RTK fixed, 5 RTK float, 6 dead reckoning)
+    /// when the source reports it (gpsd's TPV `status`); `None` for ROS `NavSatFix`, whose one
+    /// ground-augmented status cannot tell RTK fixed from float.
+    pub gga_quality: Option<u8>,
 }
 
 /// A true heading (dual-antenna receiver, NMEA HDT/THS, or a ROS heading topic).

@@ -1,6 +1,6 @@
-//! Per-cell classification rules (methods.md §4 step 4, plus the plane-fit slope and step tests
-//! that go beyond the source). Pure functions over a 5x5 neighbourhood of cell statistics, so
-//! every rule is unit-tested on its own.
+//! Per-cell classification rules (docs/algorithms.md §4.6: the source's step 4, plus the plane-fit
+//! slope and step tests that go beyond it). Pure functions over a 5x5 neighbourhood of cell
+//! statistics, so every rule is unit-tested on its own.
 
 use crate::config::Config;
 
@@ -165,7 +165,7 @@ impl Rules {
             let s = nb[(dy + 2) as usize][(dx + 2) as usize];
             (s.n >= self.min_points).then_some(s.mean_m)
         };
-        // methods.md's rule; diagonal neighbours are sqrt(2) l away, so their limit scales with
+        // The source's rule; diagonal neighbours are sqrt(2) l away, so their limit scales with
         // the distance (otherwise a 20 deg slope facing a diagonal would read as a step).
         for dy in -1..=1 {
             for dx in -1..=1 {

@@ -1,4 +1,4 @@
-//! Mapper parameters. Defaults are the methods.md §4 values for the Clearpath Husky A200 profile;
+//! Mapper parameters (docs/algorithms.md §4.14). Defaults are the source's Husky A200 values;
 //! `config/mapper.toml` fills them, `config/mapper-car.toml` is the KITTI car profile.
 
 use serde::{Deserialize, Serialize};
@@ -14,7 +14,7 @@ pub struct IsolatedPair {
     pub dist_k_m: f64,
 }
 
-/// All mapper parameters (names as in methods.md §4, units in the names).
+/// All mapper parameters (the source's names, units in the names; docs/algorithms.md §4.14).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Config {
@@ -59,8 +59,9 @@ pub struct Config {
     pub max_variance_m2: f64,
     /// Largest slope `alpha`, degrees; gives the 8-neighbour step limit `h_max = l tan(alpha)`.
     pub alpha_deg: f64,
-    /// Beyond the source: largest height of a cell above or below the least-squares plane of its
-    /// 5x5 neighbourhood (the plane fit and step test that finds 5-10 cm curbs), metres.
+    /// Beyond the source: the limit of the profile step test (the jump from a cell to a neighbour
+    /// less the slopes on either side) and of the face test across a cell, which find 5-10 cm
+    /// curbs on slopes (docs/algorithms.md §4.6), metres.
     pub max_step_m: f64,
     /// Beyond the source: in the profile step test a cell whose height spread lies between
     /// `grass_sd_min_m` (the sensor's noise on a hard surface) and `grass_sd_max_m` (below a
@@ -121,7 +122,7 @@ pub struct Config {
     pub cost_max: u8,
     /// Decay length of the cost penalty, metres.
     pub cost_decay_m: f64,
-    /// Also inflate undecided cells (observed, too few points around) as methods.md says.
+    /// Also inflate undecided cells (observed, too few points around) as the source does.
     pub inflate_undecided: bool,
 
     // --- 6. Proprioception and negative obstacles ---

@@ -1,5 +1,5 @@
-//! Point filters of methods.md §4 steps 1-2: the height filter relative to the robot and the
-//! isolated-point filter for dynamic leftovers.
+//! Point filters of docs/algorithms.md §4.1 (the source's steps 1-2): the height filter relative to
+//! the robot and the isolated-point filter for dynamic leftovers.
 
 use crate::config::IsolatedPair;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};

@@ -1,15 +1,17 @@
-//! 2.5D traversability grid from LiDAR points, and map tiles (methods.md §4).
+//! 2.5D traversability grid from LiDAR points, and map tiles (docs/algorithms.md §4).
 //!
 //! A pure library: feed a [`Mapper`] map-frame points (one scan with its pose, or the SLAM map
 //! cloud around the robot), the robot pose and a time; it returns the lattice tiles that changed
 //! and keeps a grid the planner reads through [`Mapper::planner_view`]. No threads, clocks or
 //! files inside; it cannot tell simulated from real data.
 //!
-//! Pipeline per update: [`filters::height_filter`] (step 1), [`filters::isolated_point_filter`]
-//! (step 2), binning under the per-cell ceiling `h_max2` (step 3), evidence per cell in two time
-//! epochs so newer observations replace what walkers left, classification of the dirty cells by
-//! [`classify::Rules`] (step 4, with a plane-fit slope and step test beyond the source),
-//! negative obstacles and proprioception (step 6), inflation with decaying costs (step 5).
+//! Pipeline per update: free space from the sweep's beams, [`filters::height_filter`] (step 1),
+//! [`filters::isolated_point_filter`] (step 2), binning under the per-cell ceiling `h_max2`
+//! (step 3), evidence per cell in two time epochs so newer observations replace what walkers
+//! left, classification of the dirty cells by [`classify::Rules`] (step 4, with a plane-fit slope
+//! and step tests beyond the source) and the far rules beyond the processing distance, negative
+//! obstacles and proprioception (step 6), inflation with decaying costs (step 5). The mapper's
+//! own module keeps the cell store; each stage is a module of its own under `src/mapper/`.
 //!
 //! ```
 //! use mapping::{Config, Mapper, RobotPose, Evidence};

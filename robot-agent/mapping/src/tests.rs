@@ -383,7 +383,7 @@ fn cells_follow_a_frame_correction_and_old_cells_keep_theirs() {
         );
         if follow {
             let delta = nalgebra::Isometry3::translation(0.0, 0.0, lift);
-            let moved = m.follow_frame(&delta, 30.0, 20.0);
+            let moved = m.follow_frame(&delta, 30.0);
             assert!(moved > 1000, "{moved} cells moved");
         }
         drive(

@@ -1,4 +1,4 @@
-//! A* on the 8-connected planning grid (methods.md §5).
+//! A* on the 8-connected planning grid (docs/algorithms.md §5.4).
 //!
 //! `f = g + h` with the octile heuristic `h = s (dx + dy + (sqrt2 - 2) min(dx, dy))` (s = cell
 //! size); a step costs its length (`s` or `s sqrt2`) plus the step penalty of the cell entered.

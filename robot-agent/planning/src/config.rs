@@ -1,12 +1,12 @@
-//! Planner parameters, defaults from methods.md §4-§5 (`config/planner.toml`).
+//! Planner parameters (`config/planner.toml`, docs/algorithms.md §5).
 
 use serde::{Deserialize, Serialize};
 
-/// Planner parameters. Every field has the methods.md default; a TOML file may set any subset.
+/// Planner parameters. Every field has its default in code; a TOML file may set any subset.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PlannerConfig {
-    // Planning window (methods.md §4 step 3).
+    // Planning window (docs/algorithms.md §5.1).
     /// Cells per side of the robot-centred planning window.
     pub num_of_grid_cells: u32,
     /// Cell edge, metres.
@@ -20,7 +20,7 @@ pub struct PlannerConfig {
     /// Step penalty of a never-observed cell, metres.
     pub unknown_penalty_m: f64,
 
-    // Goals (methods.md §5).
+    // Goals (docs/algorithms.md §5.2).
     /// Radius searched for a traversable cell when the goal cell is not, metres.
     pub goal_search_radius_m: f64,
     /// GNSS goals are re-evaluated at each fix unless closer than this, metres.

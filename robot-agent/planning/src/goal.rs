@@ -1,4 +1,4 @@
-//! The goal-cell rules of methods.md §5.
+//! The goal-cell rules (docs/algorithms.md §5.2).
 //!
 //! 1. The goal is the cell containing the goal point.
 //! 2. If that cell may not be entered, the nearest enterable cell within `goal_search_radius_m`

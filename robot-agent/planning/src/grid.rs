@@ -1,8 +1,8 @@
 //! The planner's view of the traversability grid.
 //!
 //! A [`PlanGrid`] is a rectangular window of `width` x `height` cells on the fixed map-frame
-//! lattice (by default 300 x 300 cells of 0.2 m around the robot, methods.md §4). Each cell holds
-//! one step penalty in metres: the cost added when a path *enters* the cell, or
+//! lattice (by default 300 x 300 cells of 0.2 m around the robot, docs/algorithms.md §5.1). Each
+//! cell holds one step penalty in metres: the cost added when a path *enters* the cell, or
 //! [`BLOCKED`] when it may not be entered; and an "unknown" flag (never observed), which the
 //! reachability floods need to find frontiers.
 //!

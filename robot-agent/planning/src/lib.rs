@@ -1,5 +1,5 @@
 //! Goal assignment, reachability floods, A* on the traversability grid, path smoothing
-//! (methods.md §5).
+//! (docs/algorithms.md §5).
 //!
 //! Plain library: cell coordinates and map-frame metres in, paths out; no clocks, threads or
 //! transport. The only I/O is the Moving AI benchmark file reader in [`movingai`].

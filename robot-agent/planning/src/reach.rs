@@ -1,4 +1,5 @@
-//! Reachability floods (methods.md §5): does a path exist, may one exist beyond the map, or none?
+//! Reachability floods (docs/algorithms.md §5.3): does a path exist, may one exist beyond the map,
+//! or none?
 //!
 //! Two floods on the 8-connected grid (no corner cutting, as A* moves):
 //! - from the start over *traversable* cells (enterable and observed), noting frontier cells

@@ -1,4 +1,5 @@
-//! Path smoothing (methods.md §5: moving average before following) and cell path -> polyline.
+//! Path smoothing (docs/algorithms.md §5.5: moving average before following) and cell path ->
+//! polyline.
 //!
 //! The A* path zig-zags between cell centres in 45 degree steps; a moving average turns that into
 //! a path pure pursuit can follow. Averaging pulls points towards the inside of bends, which can

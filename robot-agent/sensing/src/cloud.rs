@@ -73,7 +73,7 @@ pub struct OdomSample {
     pub omega_rps: f64,
 }
 
-/// One accelerometer reading of an IMU mounted at `base_link`.
+/// One reading of an IMU mounted at `base_link`: accelerometer, and gyroscope when it has one.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 pub struct ImuSample {
     /// Time, seconds (session clock): the end of the interval the reading averages.
@@ -81,6 +81,9 @@ pub struct ImuSample {
     /// Specific force (acceleration less gravity, so +9.81 up at rest) in `base_link`, averaged
     /// over the sample interval as an IMU's anti-aliasing filter does, m/s^2.
     pub accel_mps2: [f64; 3],
+    /// Angular rate of `base_link` about its own axes, averaged over the same interval, rad/s
+    /// (`None`: the unit has no gyroscope, or did not report it).
+    pub gyro_rps: Option<[f64; 3]>,
 }
 
 /// One NMEA-0183 sentence as received from a GNSS receiver, with its arrival time.

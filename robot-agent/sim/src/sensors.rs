@@ -129,6 +129,11 @@ pub struct ImuConfig {
     /// Standard deviation of the constant per-axis bias drawn at start-up, m/s^2
     /// (0.01 m/s^2 reads as a 0.06 deg tilt).
     pub accel_bias_mps2: f64,
+    /// Gyroscope white noise per sample and axis, rad/s.
+    pub gyro_noise_rps: f64,
+    /// Standard deviation of the gyroscope's constant per-axis bias, rad/s (0.002: 0.1 deg/s,
+    /// an uncalibrated MEMS part after warm-up).
+    pub gyro_bias_rps: f64,
 }
 
 impl Default for ImuConfig {
@@ -138,6 +143,8 @@ impl Default for ImuConfig {
             rate_hz: 50.0,
             accel_noise_mps2: 0.02,
             accel_bias_mps2: 0.01,
+            gyro_noise_rps: 0.002,
+            gyro_bias_rps: 0.002,
         }
     }
 }
@@ -488,26 +495,38 @@ pub(crate) fn depth_frame(
     }
 }
 
-/// The accelerometer: the true specific force of `base_link` (from the plant's motion, bumps
-/// included), averaged over each sample interval, plus bias and noise.
+/// The IMU: the accelerometer reads the true specific force of `base_link` (from the plant's
+/// motion, bumps included), the gyroscope its true angular rate, each averaged over the sample
+/// interval, plus bias and noise.
 pub(crate) struct Imu {
     cfg: ImuConfig,
     bias: Vector3<f64>,
+    gyro_bias: Vector3<f64>,
+    /// The gyroscope's own noise stream, so the accelerometer's readings stay what they were
+    /// before the simulator had a gyroscope.
+    gyro_rng: SmallRng,
     /// World velocity over the previous sub-step, for the acceleration of the next.
     v_prev: Option<Vector3<f64>>,
     sum: Vector3<f64>,
+    sum_rate: Vector3<f64>,
     sum_t_s: f64,
     next_t_s: f64,
 }
 
 impl Imu {
-    pub(crate) fn new(cfg: &ImuConfig, rng: &mut SmallRng) -> Self {
+    pub(crate) fn new(cfg: &ImuConfig, rng: &mut SmallRng, mut gyro_rng: SmallRng) -> Self {
         let mut b = || rng.sample::<f64, _>(StandardNormal) * cfg.accel_bias_mps2;
+        let bias = Vector3::new(b(), b(), b());
+        let mut g = || gyro_rng.sample::<f64, _>(StandardNormal) * cfg.gyro_bias_rps;
+        let gyro_bias = Vector3::new(g(), g(), g());
         Self {
             cfg: cfg.clone(),
-            bias: Vector3::new(b(), b(), b()),
+            bias,
+            gyro_bias,
+            gyro_rng,
             v_prev: None,
             sum: Vector3::zeros(),
+            sum_rate: Vector3::zeros(),
             sum_t_s: 0.0,
             next_t_s: 1.0 / cfg.rate_hz.max(1e-3),
         }
@@ -528,6 +547,8 @@ impl Imu {
         let f_world = a + Vector3::new(0.0, 0.0, GRAVITY_MPS2);
         let rot = base0.rotation.slerp(&base1.rotation, 0.5);
         self.sum += (rot.inverse() * f_world) * dt_s;
+        // The body rate over the sub-step: the rotation from base0 to base1, in base_link.
+        self.sum_rate += (base0.rotation.inverse() * base1.rotation).scaled_axis();
         self.sum_t_s += dt_s;
         if t_end_s + 1e-9 < self.next_t_s {
             return None;
@@ -537,13 +558,19 @@ impl Imu {
             self.next_t_s = t_end_s + 1.0 / self.cfg.rate_hz;
         }
         let mean = self.sum / self.sum_t_s;
+        let rate = self.sum_rate / self.sum_t_s;
         self.sum = Vector3::zeros();
+        self.sum_rate = Vector3::zeros();
         self.sum_t_s = 0.0;
         let mut n = || rng.sample::<f64, _>(StandardNormal) * self.cfg.accel_noise_mps2;
         let f = mean + self.bias + Vector3::new(n(), n(), n());
+        let (gr, sd) = (&mut self.gyro_rng, self.cfg.gyro_noise_rps);
+        let mut gn = || gr.sample::<f64, _>(StandardNormal) * sd;
+        let w = rate + self.gyro_bias + Vector3::new(gn(), gn(), gn());
         Some(ImuSample {
             t_s: t_end_s,
             accel_mps2: [f.x, f.y, f.z],
+            gyro_rps: Some([w.x, w.y, w.z]),
         })
     }
 }

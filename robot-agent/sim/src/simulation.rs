@@ -133,7 +133,7 @@ impl Simulation {
         let rng =
             |k: u64| SmallRng::seed_from_u64(cfg.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ k);
         let mut rng_imu = rng(5);
-        let imu = Imu::new(&cfg.imu, &mut rng_imu);
+        let imu = Imu::new(&cfg.imu, &mut rng_imu, rng(8));
         Self {
             plant,
             lidar,

@@ -1,4 +1,4 @@
-//! SLAM configuration. `Default` is the real robot's configuration from methods.md §3; each
+//! SLAM configuration. `Default` is the real robot's configuration (docs/algorithms.md §3); each
 //! stage receives only its own section.
 
 use serde::Deserialize;
@@ -150,9 +150,9 @@ impl Default for IcpConfig {
     }
 }
 
-/// Map maintenance. Map normals are PCA fits over the map's own points (methods.md §3 "map
-/// filters: surface normals"), refreshed where new points arrive: the map has seen the ground
-/// from many poses, a single sparse scan only along its rings.
+/// Map maintenance. Map normals are PCA fits over the map's own points (the source's "map filters:
+/// surface normals", docs/algorithms.md §3.4), refreshed where new points arrive: the map has seen
+/// the ground from many poses, a single sparse scan only along its rings.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
 pub struct MapConfig {
@@ -171,7 +171,7 @@ pub struct MapConfig {
     /// ...or turned this much, radians...
     pub update_min_rotation_rad: f64,
     /// ...or this much time passed, seconds. Every scan is localised; only these update the map
-    /// (the source robot mapped at 0.65 Hz and localised at 6.5 Hz, methods.md §3).
+    /// (the source robot mapped at 0.65 Hz and localised at 6.5 Hz, docs/algorithms.md §3.1).
     pub update_max_interval_s: f64,
     /// Map neighbours per surface normal.
     pub normal_knn: usize,
@@ -214,7 +214,7 @@ impl Default for MapConfig {
     }
 }
 
-/// Dynamic points (ray model, methods.md §3).
+/// Dynamic points (ray model, docs/algorithms.md §3.5).
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
 pub struct DynamicConfig {

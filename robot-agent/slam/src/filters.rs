@@ -1,5 +1,6 @@
-//! Reading filters (methods.md §3): every n-th point, robot-box removal, range limits, random
-//! sampling, voxel grid, surface normals by PCA, max density, normals oriented toward the sensor.
+//! Reading filters (docs/algorithms.md §3.2): every n-th point, robot-box removal, range limits,
+//! random sampling, voxel grid, surface normals by PCA, max density, normals oriented toward the
+//! sensor.
 
 use crate::config::FilterConfig;
 use crate::index::KdIndex;

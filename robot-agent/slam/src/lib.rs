@@ -1,4 +1,4 @@
-//! Scan-to-map ICP SLAM with dynamic-point map maintenance (methods.md §3).
+//! Scan-to-map ICP SLAM with dynamic-point map maintenance (docs/algorithms.md §3).
 //!
 //! A pure library: feed [`Slam`] scans (and optionally wheel odometry) with their time stamps;
 //! it returns `map<-base_link`, `map<-odom`, the map around the robot and ICP diagnostics. No

@@ -1,6 +1,6 @@
 //! The point map: points with normals and a P(dynamic) each, a spatial index rebuilt after each
 //! update, insertion of new points beyond `min_dist_new_point_m`, a distance limit around the
-//! sensor, and the ray-model dynamic-point update (methods.md §3).
+//! sensor, and the ray-model dynamic-point update (docs/algorithms.md §3.4-3.5).
 
 use crate::config::{DynamicConfig, MapConfig, MapIndexKind};
 use crate::filters::{pca_fit, OrientedCloud};
@@ -612,7 +612,8 @@ impl RangeImage {
 ///
 /// For each map point q the scan's beam closest in direction decides, if it passes within
 /// `theta_max`: it ended near q (q is there: static evidence), in front of q (no evidence), or
-/// beyond q (it went through where q was: dynamic evidence). How methods.md's formulas are read:
+/// beyond q (it went through where q was: dynamic evidence). How the source's formulas are read
+/// (docs/algorithms.md §3.5):
 ///
 /// - `P(U) = (1 - theta/theta_max)(1 - 2 phi/pi)` is the chance the observation is usable
 ///   (strongest on the beam axis, weakest at grazing incidence); an unusable observation teaches

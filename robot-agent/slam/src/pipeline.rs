@@ -5,7 +5,7 @@ use crate::filters::{self, OrientedCloud};
 use crate::icp::{self, IcpResult, IcpStatus};
 use crate::map::{Map, MapUpdateStats};
 use crate::se3;
-use nalgebra::{Isometry3, Point3, Vector6};
+use nalgebra::{Isometry3, Point3, Vector3, Vector6};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use sensing::{OdomSample, Point, Scan};
@@ -110,6 +110,8 @@ pub struct Slam {
     map_from_odom: Isometry3<f64>,
     /// `(stamp, map<-lidar)` of the last scan that updated the map.
     last_map_update: Option<(f64, Isometry3<f64>)>,
+    /// Gyroscope readings `(end of interval, rate in base_link)`, oldest first.
+    gyro: VecDeque<(f64, Vector3<f64>)>,
     /// Scans processed (the dynamic-point update runs on every `dynamic.every_n_scans`-th).
     scans: u64,
 }
@@ -132,8 +134,46 @@ impl Slam {
             history: VecDeque::new(),
             map_from_odom: Isometry3::identity(),
             last_map_update: None,
+            gyro: VecDeque::new(),
             scans: 0,
         }
+    }
+
+    /// Adds one gyroscope reading: the mean angular rate of `base_link` (rad/s, its own axes)
+    /// over the interval ending at `t_s`. Non-finite or out-of-order readings are ignored.
+    pub fn push_gyro(&mut self, t_s: f64, rate_rps: [f64; 3]) {
+        let w = Vector3::from(rate_rps);
+        if !t_s.is_finite()
+            || !w.iter().all(|x| x.is_finite())
+            || self.gyro.back().is_some_and(|(t, _)| t_s <= *t)
+        {
+            return;
+        }
+        self.gyro.push_back((t_s, w));
+        while self
+            .gyro
+            .front()
+            .is_some_and(|(t, _)| *t < t_s - ODOM_KEEP_S)
+        {
+            self.gyro.pop_front();
+        }
+    }
+
+    /// The mean body rate over `[t0, t1]` in the lidar frame, from the readings whose
+    /// intervals end inside it (and the first one after it, which covers its end); `None`
+    /// without a reading newer than `t0`.
+    fn gyro_rate_lidar(&self, t0: f64, t1: f64) -> Option<Vector3<f64>> {
+        let i = self.gyro.partition_point(|(t, _)| *t <= t0);
+        let mut sum = Vector3::zeros();
+        let mut n = 0.0;
+        for (t, w) in self.gyro.range(i..) {
+            sum += w;
+            n += 1.0;
+            if *t >= t1 {
+                break;
+            }
+        }
+        (n > 0.0).then(|| self.base_from_lidar.rotation.inverse() * (sum / n))
     }
 
     /// True when the scan at `pose` / `t_s` should update the map: the first one, then once the
@@ -242,7 +282,23 @@ impl Slam {
         // De-skew: express every return in the lidar frame at `stamp_s`.
         let swept = self.cfg.sensor.deskew && scan.points.iter().any(|p| p.t_s != 0.0);
         let twist = if swept {
-            self.twist_per_s(&prior, scan.stamp_s)
+            // The sweep's rotation from the gyroscope when there is one: wheel odometry knows
+            // nothing of pitch and roll, and a robot cresting a ramp pitches ~2 deg within one
+            // sweep, which registration would otherwise split into a 1 deg error of the pose.
+            let span_s = scan
+                .points
+                .iter()
+                .map(|p| f64::from(p.t_s))
+                .fold(0.0, f64::max);
+            let gyro = self.gyro_rate_lidar(scan.stamp_s, scan.stamp_s + span_s);
+            match (self.twist_per_s(&prior, scan.stamp_s), gyro) {
+                (Some(mut xi), Some(w)) => {
+                    xi.fixed_rows_mut::<3>(0).copy_from(&w);
+                    Some(xi)
+                }
+                (None, Some(w)) => Some(Vector6::new(w.x, w.y, w.z, 0.0, 0.0, 0.0)),
+                (xi, None) => xi,
+            }
         } else {
             None
         };
@@ -370,4 +426,33 @@ pub fn register_pair(
     let tgt = prep(target, &mut rng);
     let index = crate::index::KdIndex::build(&tgt.points);
     icp::register(&src, &tgt, &index, init, &cfg.icp)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_sweep_rate_is_the_mean_gyro_reading_in_the_lidar_frame() {
+        let mut cfg = Config::default();
+        // A lidar turned 90 deg about z: the body's x rate is the lidar's -y rate.
+        cfg.sensor.lidar_rpy_rad = [0.0, 0.0, std::f64::consts::FRAC_PI_2];
+        let mut s = Slam::new(cfg);
+        assert!(s.gyro_rate_lidar(0.0, 0.1).is_none());
+        for (t, wx) in [
+            (0.98, 9.0),
+            (1.02, 0.1),
+            (1.06, 0.3),
+            (1.10, 0.2),
+            (1.14, 9.0),
+        ] {
+            s.push_gyro(t, [wx, 0.0, 0.0]);
+        }
+        s.push_gyro(1.12, [5.0, 0.0, 0.0]); // out of order: ignored
+        s.push_gyro(1.2, [f64::NAN, 0.0, 0.0]); // not finite: ignored
+        let w = s.gyro_rate_lidar(1.0, 1.1).unwrap();
+        assert!((w - Vector3::new(0.0, -0.2, 0.0)).norm() < 1e-9, "{w}");
+        // Nothing newer than the sweep's start: no rate.
+        assert!(s.gyro_rate_lidar(1.14, 1.24).is_none());
+    }
 }

@@ -29,7 +29,7 @@ use common::grid::TileIndex;
 use common::keys::{self, RobotId, Topic};
 use common::msg::{
     self, CmdHeader, DriveCmd, GoalCmd, Path, Pose, Route, RouteCmd, Session, SpeedCmd, Status,
-    StopCmd,
+    StopCmd, ZoneSet,
 };
 use common::security::CertFiles;
 use tokio::sync::mpsc;
@@ -229,6 +229,8 @@ pub enum Command {
     Stop(StopCmd),
     /// Speed limit.
     Speed(SpeedCmd),
+    /// The zones to obey (from the station).
+    Zones(ZoneSet),
     /// A command that was refused (already counted by the bus); show it in the status.
     Refused(Refusal),
 }
@@ -295,6 +297,7 @@ pub fn validate(cmd: &Command, limits: &CommandLimits, ctx: &RobotContext) -> Re
         Command::Drive(d) => command::check_drive(d, limits),
         Command::Speed(s) => command::check_speed(s),
         Command::Route(r) => command::check_route(r),
+        Command::Zones(z) => command::check_zones(z),
         Command::Stop(_) | Command::Refused(_) => Ok(()),
     }
 }
@@ -323,9 +326,14 @@ pub fn parse_command(
     now_unix_ms: u64,
 ) -> Option<Parsed> {
     let (rid, topic) = keys::parse(key).ok()?;
-    if &rid != robot || !topic.is_command() {
+    if &rid != robot || !(topic.is_command() || topic == Topic::Zones) {
         return None;
     }
+    let refused = |r: Refusal, undecodable: bool, replayed: bool| Parsed {
+        command: Command::Refused(r),
+        undecodable,
+        replayed,
+    };
     fn dec<T: serde::de::DeserializeOwned>(
         kind: &'static str,
         b: &[u8],
@@ -341,12 +349,31 @@ pub fn parse_command(
         Topic::CmdDrive => dec("drive", payload, Command::Drive),
         Topic::CmdStop => dec("stop", payload, Command::Stop),
         Topic::CmdSpeed => dec("speed", payload, Command::Speed),
+        Topic::Zones => {
+            // A zone set is the station's state, not a command: it travels bare (pushed, or as
+            // the answer to the robot's query, possibly long after it was drawn), only a station
+            // may send it (the access rules), and its version orders it (the agent keeps the
+            // newest), so it does not pass the replay guard.
+            return Some(match msg::decode::<ZoneSet>(payload) {
+                Err(e) => refused(
+                    Refusal::new(RefusalCode::Undecodable, format!("zones: {e}")),
+                    true,
+                    false,
+                ),
+                Ok(set) => {
+                    let cmd = Command::Zones(set);
+                    match validate(&cmd, limits, ctx) {
+                        Ok(()) => Parsed {
+                            command: cmd,
+                            undecodable: false,
+                            replayed: false,
+                        },
+                        Err(r) => refused(r, false, false),
+                    }
+                }
+            });
+        }
         _ => return None,
-    };
-    let refused = |r: Refusal, undecodable: bool, replayed: bool| Parsed {
-        command: Command::Refused(r),
-        undecodable,
-        replayed,
     };
     Some(match decoded {
         Err(r) => refused(r, true, false),
@@ -397,17 +424,56 @@ impl RobotBus {
         });
         let mut tasks = Vec::new();
 
-        // Commands.
+        // Commands, and the station's zones (pushed, and asked for once at start: a robot that
+        // starts after the zones were drawn must obey them too).
         let sub = session
             .declare_subscriber(keys::robot_commands(&robot))
             .await
             .map_err(zerr)?;
-        {
-            let shared = shared.clone();
+        let zones_sub = session
+            .declare_subscriber(keys::key(&robot, Topic::Zones))
+            .await
+            .map_err(zerr)?;
+        let (sample_tx, mut sample_rx) = mpsc::unbounded_channel::<(String, Vec<u8>)>();
+        for sub in [sub, zones_sub] {
+            let tx = sample_tx.clone();
             tasks.push(tokio::spawn(async move {
                 while let Ok(sample) = sub.recv_async().await {
                     let key = sample.key_expr().as_str().to_string();
-                    let payload = sample.payload().to_bytes();
+                    if tx
+                        .send((key, sample.payload().to_bytes().to_vec()))
+                        .is_err()
+                    {
+                        break;
+                    }
+                }
+            }));
+        }
+        {
+            let tx = sample_tx;
+            let s2 = session.clone();
+            let key = keys::key(&robot, Topic::Zones);
+            tasks.push(tokio::spawn(async move {
+                // Give the connection to the station a moment; a station that is not there yet
+                // pushes the zones when it sees this robot's session.
+                tokio::time::sleep(Duration::from_millis(500)).await;
+                match s2.get(&key).timeout(Duration::from_secs(3)).await {
+                    Ok(replies) => {
+                        while let Ok(reply) = replies.recv_async().await {
+                            if let Ok(sample) = reply.result() {
+                                let k = sample.key_expr().as_str().to_string();
+                                let _ = tx.send((k, sample.payload().to_bytes().to_vec()));
+                            }
+                        }
+                    }
+                    Err(e) => tracing::debug!("zones query: {e}"),
+                }
+            }));
+        }
+        {
+            let shared = shared.clone();
+            tasks.push(tokio::spawn(async move {
+                while let Some((key, payload)) = sample_rx.recv().await {
                     let ctx = *shared.context.lock().unwrap_or_else(|p| p.into_inner());
                     let parsed = {
                         let mut guard = shared

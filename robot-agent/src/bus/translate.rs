@@ -7,9 +7,10 @@ use agent::command::{
 use agent::localiser::{FixKind, FrameKind};
 use agent::mission::{Mode as AgentMode, Phase};
 use agent::status::{AgentStatus, PoseEstimate};
+use agent::zones::{ZoneRule, ZoneShape};
 use common::msg::{
     FixState, GoalTarget, MapFrame, MissionState, Mode, Pose, Route, RouteCmd, RouteDirection,
-    RoutePoint, RouteProgress, SlamHealth, Status,
+    RoutePoint, RouteProgress, SlamHealth, Status, ZoneKind, ZoneSet,
 };
 
 /// The agent command of a validated wire command; `None` for a refusal (the bus already
@@ -56,8 +57,30 @@ pub fn command_to_agent(cmd: WireCommand) -> Option<CommandKind> {
             RouteCmd::Resume => CommandKind::Resume,
             RouteCmd::Cancel => CommandKind::Cancel,
         },
+        WireCommand::Zones(set) => zones_to_agent(set),
         WireCommand::Refused(_) => return None,
     })
+}
+
+/// A wire zone set as the agent's zones command.
+pub fn zones_to_agent(set: ZoneSet) -> CommandKind {
+    CommandKind::Zones {
+        version: set.version,
+        session_id: set.session_id,
+        zones: set
+            .zones
+            .into_iter()
+            .map(|z| ZoneShape {
+                id: z.zone_id,
+                name: z.name,
+                rule: match z.kind {
+                    ZoneKind::KeepOut => ZoneRule::KeepOut,
+                    ZoneKind::Slow { speed_mps } => ZoneRule::Slow(f64::from(speed_mps)),
+                },
+                polygon_m: z.polygon_m,
+            })
+            .collect(),
+    }
 }
 
 /// A wire route as the agent's taught route.
@@ -190,9 +213,13 @@ pub fn status_to_wire(s: &AgentStatus, t_unix_ms: u64, c: RuntimeCounters) -> St
             failures: s.slam.failures,
         },
         speed_limit_mps: s.speed_limit_mps as f32,
+        speed_max_mps: s.speed_max_mps as f32,
+        zones_version: s.zones_version,
+        zone: s.zone.clone(),
         recording: s.recording,
         route: s.route.as_ref().map(|r| RouteProgress {
             route_id: r.route_id.clone(),
+            name: r.name.clone(),
             waypoint: r.waypoint as u32,
             waypoints: r.waypoints as u32,
             distance_left_m: r.distance_left_m as f32,

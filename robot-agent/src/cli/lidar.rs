@@ -29,6 +29,9 @@ enum LidarCommand {
     Decode(DecodeArgs),
     /// Receive packets on a UDP socket and decode them into scans.
     Listen(ListenArgs),
+    /// Publish a ROS 2 bag's VelodyneScan messages on a ROS 2 topic over Zenoh, as a VLP-16
+    /// driver would (to feed `robot-agent run --lidar-msg VelodyneScan`); one summary line.
+    Play(PlayArgs),
 }
 
 /// Decoder settings shared by both subcommands.
@@ -122,12 +125,81 @@ struct ListenArgs {
     decoder: DecoderOpts,
 }
 
+#[derive(Debug, clap::Args)]
+struct PlayArgs {
+    /// The bag: a rosbag2 SQLite file (.db3), or its folder.
+    bag: PathBuf,
+    /// Bag topic (default: the first velodyne_msgs/msg/VelodyneScan topic).
+    #[arg(long)]
+    topic: Option<String>,
+    /// Topic to publish on (default: the bag topic).
+    #[arg(long = "as", value_name = "TOPIC")]
+    publish_as: Option<String>,
+    /// ROS 2 key form: `bridge` (zenoh-bridge-ros2dds) or `rmw` (rmw_zenoh).
+    #[arg(long, default_value = "bridge", value_name = "FORM")]
+    ros2_keys: String,
+    /// ROS 2 namespace.
+    #[arg(long, default_value = "", value_name = "NS")]
+    ros2_namespace: String,
+    /// ROS_DOMAIN_ID (rmw form).
+    #[arg(long, default_value_t = 0, value_name = "ID")]
+    ros2_domain_id: u32,
+    /// Zenoh endpoint to listen on, as a bridge does (e.g. tcp/127.0.0.1:7450).
+    #[arg(long, value_name = "ENDPOINT")]
+    listen: Vec<String>,
+    /// Zenoh endpoint to connect to.
+    #[arg(long, value_name = "ENDPOINT")]
+    connect: Vec<String>,
+    /// Speed factor (2: twice as fast as recorded).
+    #[arg(long, default_value_t = 1.0)]
+    rate: f64,
+    /// Wait this long for a subscriber before the first message (0: start at once), seconds.
+    #[arg(long, default_value_t = 30.0, value_name = "S")]
+    wait_subscriber_s: f64,
+    /// Move every stamp so the first message is stamped now (to mix with live sensors).
+    #[arg(long)]
+    restamp: bool,
+}
+
 /// Runs `robot-agent lidar`.
 pub fn run(args: LidarArgs) -> anyhow::Result<()> {
     match args.command {
         LidarCommand::Decode(a) => decode(a),
         LidarCommand::Listen(a) => listen(a),
+        LidarCommand::Play(a) => play(a),
     }
+}
+
+fn play(a: PlayArgs) -> anyhow::Result<()> {
+    let form = a
+        .ros2_keys
+        .parse()
+        .map_err(|e: String| anyhow::anyhow!("--ros2-keys: {e}"))?;
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    super::run::stop_on_signals(stop.clone())?;
+    let summary = crate::run::bag_play::play(
+        &crate::run::bag_play::PlayOptions {
+            bag: a.bag,
+            topic: a.topic,
+            publish_as: a.publish_as,
+            graph: io::ros2::Ros2Graph {
+                form,
+                domain_id: a.ros2_domain_id,
+                namespace: a.ros2_namespace,
+            },
+            zenoh: crate::bus::ZenohSettings {
+                listen: a.listen,
+                connect: a.connect,
+                ..Default::default()
+            },
+            rate: a.rate,
+            wait_subscriber_s: a.wait_subscriber_s,
+            restamp: a.restamp,
+        },
+        &stop,
+    )?;
+    println!("{summary}");
+    Ok(())
 }
 
 /// Numbered output path: `dir/name.pcd` -> `dir/name_007.pcd`.

@@ -56,10 +56,17 @@ pub struct MissionArgs {
     /// Start pose `X,Y,YAW_DEG` instead of the scenario's.
     #[arg(long, value_name = "X,Y,YAW_DEG", allow_hyphen_values = true)]
     pub start: Option<String>,
+    /// Live mode: write the simulator's true pose (`t_unix_ms x y yaw`, every 0.1 s) to this
+    /// file, for tests that judge where the robot really drove.
+    #[arg(long, value_name = "FILE")]
+    pub truth_out: Option<PathBuf>,
     /// Headless goal or teach and repeat: draw the robot's traversability map with the driven
     /// path (truth; for teach and repeat the return) and the goal into this PNG at the end.
     #[arg(long, value_name = "FILE")]
     pub png: Option<PathBuf>,
+    /// Record the run to MCAP (headless missions and the live robot).
+    #[command(flatten)]
+    pub mcap: crate::record::McapArgs,
 }
 
 impl MissionArgs {
@@ -95,6 +102,8 @@ fn agent_config(args: &MissionArgs) -> anyhow::Result<AgentConfig> {
 }
 
 fn options(args: &MissionArgs, seed: u64) -> anyhow::Result<HeadlessOptions> {
+    let dir = args.config_dir.clone().unwrap_or_else(default_config_dir);
+    let mcap = args.mcap.options(&dir, &dir.join("robot.toml"))?;
     let start = match &args.start {
         Some(s) => {
             let v = numbers(s, "--start", 3..=3)?;
@@ -107,6 +116,8 @@ fn options(args: &MissionArgs, seed: u64) -> anyhow::Result<HeadlessOptions> {
         timeout_s: args.timeout,
         start,
         map_png: args.png.clone(),
+        truth_out: args.truth_out.clone(),
+        mcap,
         ..HeadlessOptions::default()
     })
 }
@@ -182,6 +193,8 @@ pub fn run_live(
     let robot = RobotId::new(args.robot.clone()).map_err(|e| anyhow::anyhow!("--robot: {e}"))?;
     let bus = bus_config(args, listen, &robot)?;
     let stop = Arc::new(AtomicBool::new(false));
+    // SIGINT/SIGTERM end the loop, so that a recording closes with its summary.
+    super::run::stop_on_signals(stop.clone())?;
     if args.exit_with_parent {
         watch_parent(stop.clone());
     }

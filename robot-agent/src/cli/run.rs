@@ -42,6 +42,14 @@ pub struct RunArgs {
     /// LiDAR source (`ros2:TOPIC`, `vlp16-udp:PORT`); overrides `[io] lidar`.
     #[arg(long, value_name = "SPEC")]
     pub lidar: Option<String>,
+    /// Message type of a `ros2:` LiDAR topic: `PointCloud2` (sensor_msgs) or `VelodyneScan`
+    /// (velodyne_msgs: a VLP-16 driver's raw packets, e.g. `--lidar ros2:velodyne_packets`).
+    #[arg(long, value_name = "TYPE")]
+    pub lidar_msg: Option<String>,
+    /// Run without a LiDAR, to bring up and watch the other sensors (GNSS, odometry, IMU):
+    /// nothing is mapped, and the base is never driven (nothing vouches for the space ahead).
+    #[arg(long)]
+    pub no_lidar: bool,
     /// Depth-camera source (`ros2:TOPIC`, or "" for none).
     #[arg(long, value_name = "SPEC")]
     pub depth: Option<String>,
@@ -61,6 +69,9 @@ pub struct RunArgs {
     /// Base command sink (`ros2:TOPIC`, or "" to never drive).
     #[arg(long, value_name = "SPEC")]
     pub cmd_vel: Option<String>,
+    /// Print every GNSS fix the agent takes as a JSON line on stdout (`{"fix": {...}}`).
+    #[arg(long)]
+    pub print_fixes: bool,
     /// ROS 2 key form: `bridge` (zenoh-bridge-ros2dds) or `rmw` (rmw_zenoh).
     #[arg(long, value_name = "FORM")]
     pub ros2_keys: Option<String>,
@@ -80,6 +91,20 @@ pub struct RunArgs {
     /// Stop when the parent process exits (how `operator-station demo` runs its robots).
     #[arg(long)]
     pub exit_with_parent: bool,
+    /// Recording (`--mcap PATH`, `--mcap-split-mb`, `--mcap-split-s`).
+    #[command(flatten)]
+    pub record: crate::record::McapArgs,
+    /// Replay a recording (an MCAP file or folder of one, or a ROS 2 bag: MCAP or `.db3`) through
+    /// the runtime instead of running on sensors; the report is the last line. The outputs go to a
+    /// station only with --connect or --zenoh.
+    #[arg(long, value_name = "FILE")]
+    pub replay: Option<PathBuf>,
+    /// Replay at this multiple of the recorded time.
+    #[arg(long, value_name = "X", default_value_t = 1.0, requires = "replay")]
+    pub speed: f64,
+    /// Replay as fast as the CPU allows.
+    #[arg(long, requires = "replay", conflicts_with = "speed")]
+    pub as_fast_as_possible: bool,
 }
 
 /// One input's spec, checked.
@@ -96,6 +121,17 @@ fn spec(name: &str, cli: &Option<String>, file: &str) -> anyhow::Result<Option<S
         );
     }
     Ok(Some(spec))
+}
+
+/// What a `ros2:` LiDAR topic carries, from `--lidar-msg` / `[io] lidar_msg`.
+fn lidar_msg(s: &str) -> anyhow::Result<Ros2Input> {
+    match s.trim() {
+        "PointCloud2" | "sensor_msgs/msg/PointCloud2" => Ok(Ros2Input::Lidar),
+        "VelodyneScan" | "velodyne_msgs/msg/VelodyneScan" => Ok(Ros2Input::VelodynePackets),
+        other => anyhow::bail!(
+            "--lidar-msg {other:?}: PointCloud2 (sensor_msgs) or VelodyneScan (velodyne_msgs)"
+        ),
+    }
 }
 
 fn parse_datum(s: &str) -> anyhow::Result<Datum> {
@@ -204,17 +240,34 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     // source is opened.
     bus.zenoh.to_config()?;
 
-    let lidar = spec("lidar", &args.lidar, &io.lidar)?;
+    let record = args.record.options(&dir, &robot_file)?;
+    if let Some(path) = &args.replay {
+        return replay(&args, path, cfg, limits, &io, bus, record);
+    }
+    let mut lidar = spec("lidar", &args.lidar, &io.lidar)?;
     let depth = spec("depth", &args.depth, &io.depth)?;
     let odom = spec("odom", &args.odom, &io.odom)?;
     let imu = spec("imu", &args.imu, &io.imu)?;
     let gnss = spec("gnss", &args.gnss, &io.gnss)?;
     let heading = spec("heading", &args.heading, &io.heading)?;
-    let cmd_vel = spec("cmd-vel", &args.cmd_vel, &io.cmd_vel)?;
-    anyhow::ensure!(
-        lidar.is_some(),
-        "no LiDAR source: give --lidar ros2:TOPIC or vlp16-udp:PORT (or set [io] lidar)"
-    );
+    let mut cmd_vel = spec("cmd-vel", &args.cmd_vel, &io.cmd_vel)?;
+    let lidar_input = lidar_msg(args.lidar_msg.as_deref().unwrap_or(&io.lidar_msg))?;
+    if args.no_lidar {
+        anyhow::ensure!(
+            args.lidar.as_deref().is_none_or(|s| s.trim().is_empty()),
+            "--no-lidar and --lidar: choose one"
+        );
+        if args.cmd_vel.is_some() {
+            tracing::warn!("--no-lidar: the base is never driven");
+        }
+        (lidar, cmd_vel) = (None, None);
+    } else {
+        anyhow::ensure!(
+            lidar.is_some(),
+            "no LiDAR source: give --lidar ros2:TOPIC or vlp16-udp:PORT (or set [io] lidar), \
+             or --no-lidar to bring up the other sensors without one"
+        );
+    }
 
     let uses_ros2 = [&lidar, &depth, &odom, &imu, &gnss, &heading, &cmd_vel]
         .iter()
@@ -274,7 +327,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     };
     if let Some(s) = &lidar {
         sources.push(match s {
-            SourceSpec::Ros2 { topic } => ros(Ros2Input::Lidar, topic, lidar_mount)?,
+            SourceSpec::Ros2 { topic } => ros(lidar_input, topic, lidar_mount)?,
             SourceSpec::Vlp16Udp { port } => {
                 crate::run::robot::vlp16_udp(*port, Default::default())
             }
@@ -348,10 +401,63 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             sources,
             base,
             source_name: names.join(" "),
+            print_fixes: args.print_fixes,
+            record,
         },
         stop,
     )?;
     drop(link);
     println!("{summary}");
+    Ok(())
+}
+
+/// `run --replay`.
+fn replay(
+    args: &RunArgs,
+    path: &std::path::Path,
+    cfg: agent::AgentConfig,
+    limits: crate::runtime::RuntimeLimits,
+    io: &IoConfig,
+    bus: BusConfig,
+    record: Option<crate::record::RecordOptions>,
+) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.speed.is_finite() && args.speed > 0.0,
+        "--speed must be > 0"
+    );
+    // The bag topics the robot's specs name.
+    let topic = |name: &str, cli: &Option<String>, file: &str| -> anyhow::Result<Option<String>> {
+        Ok(match spec(name, cli, file)? {
+            Some(SourceSpec::Ros2 { topic }) => Some(topic),
+            _ => None,
+        })
+    };
+    let topics = crate::record::rosbag::BagTopics {
+        lidar: topic("lidar", &args.lidar, &io.lidar)?,
+        depth: topic("depth", &args.depth, &io.depth)?,
+        odom: topic("odom", &args.odom, &io.odom)?,
+        imu: topic("imu", &args.imu, &io.imu)?,
+        fix: topic("gnss", &args.gnss, &io.gnss)?,
+        heading: topic("heading", &args.heading, &io.heading)?,
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    stop_on_signals(stop.clone())?;
+    let report = crate::record::replay::run_replay(
+        crate::record::replay::ReplayOptions {
+            path: path.to_path_buf(),
+            speed: (!args.as_fast_as_possible).then_some(args.speed),
+            config: (cfg, limits),
+            override_config: args.config.is_some(),
+            robot: args.robot.clone(),
+            topics,
+            bus: (args.zenoh.is_some() || !args.connect.is_empty()).then_some(bus),
+            record,
+        },
+        stop,
+    )?;
+    if report.digest_match == Some(false) {
+        tracing::warn!("the replay's digest differs from the recording's");
+    }
+    println!("{}", serde_json::to_string(&report)?);
     Ok(())
 }

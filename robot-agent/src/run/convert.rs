@@ -139,14 +139,19 @@ pub fn odometry(o: &Odometry) -> Option<OdomSample> {
 /// An IMU reading into `base_link` (rotated by its frame's `tf_static` link when published; the
 /// lever arm is ignored, as the agent uses the accelerometer for gravity only).
 pub fn imu(m: &Imu, frames: &Frames) -> ImuSample {
-    let a = Vector3::from(m.linear_acceleration_mps2);
-    let a = match frames.body_from(&m.frame_id) {
-        Some(b) => b.rotation * a,
-        None => a,
+    let body = frames.body_from(&m.frame_id).map(|b| b.rotation);
+    let rotate = |v: [f64; 3]| {
+        let v = Vector3::from(v);
+        let v = body.map_or(v, |r| r * v);
+        [v.x, v.y, v.z]
     };
+    let w = m.angular_velocity_rps;
     ImuSample {
         t_s: m.stamp_s,
-        accel_mps2: [a.x, a.y, a.z],
+        accel_mps2: rotate(m.linear_acceleration_mps2),
+        // A driver without a gyroscope leaves the rates NaN (or zero, which is told apart only by
+        // its covariance; a zero rate de-skews nothing, so it is harmless).
+        gyro_rps: w.iter().all(|x| x.is_finite()).then(|| rotate(w)),
     }
 }
 
@@ -154,14 +159,16 @@ pub fn imu(m: &Imu, frames: &Frames) -> ImuSample {
 /// `NavSatStatus` has one status for every ground-augmented fix, and RTK fixed is centimetres.
 pub const RTK_FIXED_MAX_SIGMA_M: f64 = 0.1;
 
-/// A `NavSatFix` (or a gpsd report) into GGA terms. Quality: no fix 0, fix 1, SBAS 2, GBAS 4
-/// (RTK fixed) when the covariance is unknown or within [`RTK_FIXED_MAX_SIGMA_M`], else 5.
+/// A `NavSatFix` (or a gpsd report) into GGA terms. Quality: the receiver's own when the source
+/// gave it (gpsd), else no fix 0, fix 1, SBAS 2, GBAS 4 (RTK fixed) when the covariance is
+/// unknown or within [`RTK_FIXED_MAX_SIGMA_M`], else 5.
 pub fn fix(f: &NavFix) -> GnssFixSample {
-    let quality = match f.status {
-        FixStatus::NoFix => 0,
-        FixStatus::Fix => 1,
-        FixStatus::Sbas => 2,
-        FixStatus::Gbas => {
+    let quality = match (f.status, f.gga_quality) {
+        (FixStatus::NoFix, _) => 0,
+        (_, Some(q)) if q > 0 => q,
+        (FixStatus::Fix, _) => 1,
+        (FixStatus::Sbas, _) => 2,
+        (FixStatus::Gbas, _) => {
             let sigma = f
                 .covariance_m2
                 .map(|c| ((c[0] + c[4]) / 2.0).max(0.0).sqrt());
@@ -290,6 +297,7 @@ mod tests {
                 alt_m: 500.0,
                 status,
                 covariance_m2: cov.map(|c| [c, 0.0, 0.0, 0.0, c, 0.0, 0.0, 0.0, c]),
+                gga_quality: None,
             })
             .quality
         };
@@ -298,5 +306,16 @@ mod tests {
         assert_eq!(f(FixStatus::Gbas, Some(0.09)), 5);
         assert_eq!(f(FixStatus::Fix, Some(4.0)), 1);
         assert_eq!(f(FixStatus::NoFix, None), 0);
+        // gpsd says RTK float outright, without a covariance.
+        let float = NavFix {
+            stamp_s: 1.0,
+            lat_deg: 48.0,
+            lon_deg: 11.0,
+            alt_m: 500.0,
+            status: FixStatus::Gbas,
+            covariance_m2: None,
+            gga_quality: Some(5),
+        };
+        assert_eq!(fix(&float).quality, 5);
     }
 }

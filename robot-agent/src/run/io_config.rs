@@ -15,6 +15,9 @@ use serde::Deserialize;
 pub struct IoConfig {
     /// LiDAR: `ros2:TOPIC` (PointCloud2) or `vlp16-udp:PORT`.
     pub lidar: String,
+    /// Message type of a `ros2:` LiDAR topic: `PointCloud2` (`sensor_msgs`), or `VelodyneScan`
+    /// (`velodyne_msgs`: a VLP-16 driver's raw packets, decoded by terranav).
+    pub lidar_msg: String,
     /// Depth camera: `ros2:TOPIC` (PointCloud2), or empty.
     pub depth: String,
     /// Wheel odometry: `ros2:TOPIC` (nav_msgs/Odometry).
@@ -44,6 +47,7 @@ impl Default for IoConfig {
     fn default() -> Self {
         Self {
             lidar: "ros2:velodyne_points".into(),
+            lidar_msg: "PointCloud2".into(),
             depth: String::new(),
             odom: "ros2:odom".into(),
             imu: "ros2:imu/data".into(),
@@ -74,6 +78,9 @@ pub struct RuntimeConfig {
     pub max_stamp_lead_s: f64,
     /// How far a stamp may trail it (sensor latency plus transport), seconds.
     pub max_stamp_lag_s: f64,
+    /// With GNSS, how long the first sweeps wait for an RTK fixed fix with a heading to anchor
+    /// the map in ENU at the datum (else the map is the first pose's frame), seconds.
+    pub anchor_wait_s: f64,
 }
 
 impl Default for RuntimeConfig {
@@ -86,6 +93,7 @@ impl Default for RuntimeConfig {
             gnss_timeout_s: l.silence.gnss_timeout_s,
             max_stamp_lead_s: l.stamps.max_lead_s,
             max_stamp_lag_s: l.stamps.max_lag_s,
+            anchor_wait_s: l.anchor_wait_s,
         }
     }
 }
@@ -100,6 +108,7 @@ impl RuntimeConfig {
             ("gnss_timeout_s", self.gnss_timeout_s),
             ("max_stamp_lead_s", self.max_stamp_lead_s),
             ("max_stamp_lag_s", self.max_stamp_lag_s),
+            ("anchor_wait_s", self.anchor_wait_s),
         ] {
             anyhow::ensure!(v.is_finite() && v > 0.0, "[runtime] {k} = {v}: must be > 0");
         }
@@ -114,6 +123,7 @@ impl RuntimeConfig {
                 imu_timeout_s: self.imu_timeout_s,
                 gnss_timeout_s: self.gnss_timeout_s,
             },
+            anchor_wait_s: self.anchor_wait_s,
         })
     }
 }

@@ -22,10 +22,19 @@ pub fn run_live(
     let mut rig = Rig::new(scenario, cfg, opts, robot.as_str())?;
     // The bus loop publishes the agent's changed tiles.
     rig.own_tiles = false;
+    let source = format!("sim:{scenario_name}");
+    if let Some(m) = &opts.mcap {
+        rig.record_to(m, &source, false)?;
+    }
     let bus = BusHandle::start(bus_cfg).map_err(|e| anyhow::anyhow!("zenoh: {e}"))?;
     tracing::info!("robot {robot} live in scenario {scenario_name}");
     let wall0 = Instant::now();
-    let mut outputs = Outputs::new(&rig.agent, &format!("sim:{scenario_name}"));
+    let mut outputs = Outputs::new(&rig.agent, &source);
+    let mut truth = opts
+        .truth_out
+        .as_deref()
+        .map(crate::truth_log::TruthLog::create)
+        .transpose()?;
     while !stop.load(Ordering::Relaxed) {
         // Keep simulated time with the wall clock; if the CPU falls behind, time slows down
         // rather than the robot skipping sensor data.
@@ -36,17 +45,48 @@ pub fn run_live(
         }
         let t = rig.t_s();
         while let Some(cmd) = bus.try_recv() {
-            apply_command(&mut rig.agent, t, cmd);
+            let applied = apply_command(&mut rig.agent, t, cmd);
+            if let (Some(r), Some(c)) = (rig.recorder.as_mut(), applied) {
+                r.command(&c);
+            }
         }
         let ev = rig.step();
         let t = rig.t_s();
+        if let Some(log) = truth.as_mut() {
+            log.record(t, rig.agent.unix_ms(t), &rig.truth());
+        }
         let counters = LoopCounters {
             collisions: rig.collisions,
+            faults: recording_faults(rig.recorder.as_ref()),
             ..LoopCounters::default()
         };
-        outputs.publish(&bus, &mut rig.agent, t, ev.scan, &counters);
+        outputs.publish(
+            Some(&bus),
+            rig.recorder.as_mut(),
+            &mut rig.agent,
+            t,
+            ev.scan,
+            &counters,
+        );
     }
     tracing::info!("robot {robot} stopping");
     bus.close();
+    if let Some(summary) = rig.finish_recording() {
+        println!("{}", serde_json::json!({ "record": summary }));
+    }
     Ok(())
+}
+
+/// What the status should say about the recording: messages it had to drop, or that it stopped.
+pub fn recording_faults(rec: Option<&crate::record::SessionRecorder>) -> Vec<String> {
+    let Some(s) = rec.map(|r| r.stats()) else {
+        return Vec::new();
+    };
+    let mut v = Vec::new();
+    if let Some(e) = &s.error {
+        v.push(format!("recording stopped: {e}"));
+    } else if s.dropped() > 0 {
+        v.push(format!("recording dropped {} messages", s.dropped()));
+    }
+    v
 }

@@ -4,6 +4,7 @@
 //! The simulator is the robot here: the agent only sees its sensor outputs (scans, odometry,
 //! NMEA), never its truth; the truth is used only to score the outcome.
 
+pub mod bag_play;
 pub mod convert;
 pub mod gnss_sources;
 pub mod io_config;
@@ -11,8 +12,10 @@ pub mod live;
 pub mod map_eval;
 pub mod robot;
 pub mod ros2;
+pub mod stages;
 pub mod world;
 
+use crate::runtime::Input;
 use agent::command::{Command, CommandKind, Direction, GoalTarget};
 use agent::mission::{Mode, Phase};
 use agent::{Agent, AgentConfig, Cmd, Identity};
@@ -38,6 +41,12 @@ pub struct HeadlessOptions {
     /// Teach and repeat: draw the robot's map with the repeat's driven path (truth) into this
     /// PNG at the end.
     pub map_png: Option<std::path::PathBuf>,
+    /// Record the run to MCAP.
+    pub mcap: Option<crate::record::RecordOptions>,
+    /// Record the CPU time (this thread) of the agent's stages ([`Rig::stage_times`]).
+    pub time_stages: bool,
+    /// Live robot: write the simulator's truth here ([`crate::truth_log`]).
+    pub truth_out: Option<std::path::PathBuf>,
 }
 
 impl Default for HeadlessOptions {
@@ -48,6 +57,9 @@ impl Default for HeadlessOptions {
             start: None,
             stop_on_collision: true,
             map_png: None,
+            mcap: None,
+            time_stages: false,
+            truth_out: None,
         }
     }
 }
@@ -89,6 +101,9 @@ pub struct MissionReport {
     pub trajectory_m: Vec<(f64, f64)>,
     /// [`common::grid::map_digest`] of the robot's map at the end.
     pub map_digest: String,
+    /// The recording (`--mcap`), with the run's digest.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub record: Option<crate::record::RecordSummary>,
 }
 
 /// Timing statistics.
@@ -147,6 +162,9 @@ pub struct Rig {
     trajectory: Vec<(f64, f64)>,
     /// How sweeps reach the map.
     pub scan_mode: ScanMode,
+    /// When set, the wall time of every stage of the agent is recorded here (the pipeline
+    /// bench); the agent itself never reads a clock.
+    pub stage_times: Option<stages::StageTimes>,
     /// When set, drives the plant instead of the agent's command (a scripted survey drive).
     pub drive_override: Option<Cmd>,
     /// Tiles the agent published so far, with their encoded bytes.
@@ -161,6 +179,11 @@ pub struct Rig {
     /// What the robot would publish, with the live robot's policy.
     publisher: crate::bus::tiles::TilePublisher,
     lidar_ext: nalgebra::Isometry3<f64>,
+    /// The recording, when the run is recorded (`--mcap`).
+    pub recorder: Option<crate::record::SessionRecorder>,
+    /// The outputs a headless recorded run draws into its recording (a live rig's loop
+    /// publishes them itself).
+    outputs: Option<crate::runtime::outputs::Outputs>,
 }
 
 impl Rig {
@@ -203,8 +226,11 @@ impl Rig {
             now_ms,
         );
         Ok(Self {
+            recorder: None,
+            outputs: None,
             publisher,
             scan_mode: ScanMode::Localised,
+            stage_times: None,
             drive_override: None,
             tiles_published: 0,
             tile_bytes: 0,
@@ -223,6 +249,47 @@ impl Rig {
             last_truth: (t.x, t.y),
             trajectory: vec![(t.x, t.y)],
         })
+    }
+
+    /// Records this rig's run to MCAP: inputs, commands and control periods, and with
+    /// `own_outputs` the outputs a live robot would publish (a live rig's loop publishes them
+    /// into the recording itself).
+    pub fn record_to(
+        &mut self,
+        opts: &crate::record::RecordOptions,
+        source: &str,
+        own_outputs: bool,
+    ) -> anyhow::Result<()> {
+        use crate::runtime::stamps::Topic;
+        let cfg = self.agent.config().clone();
+        let meta = crate::record::SessionMeta {
+            identity: self.agent.identity().clone(),
+            // The rig's agent runs on the simulator's clock from 0.
+            t0_s: 0.0,
+            source: source.to_string(),
+            inputs: vec![Topic::Lidar, Topic::Odom, Topic::Imu, Topic::Gnss],
+            config_files: opts.config_files.clone(),
+            datum: cfg.datum,
+            config_digest: crate::record::config_digest(&cfg),
+        };
+        self.recorder = Some(crate::record::SessionRecorder::start(opts, &meta, &cfg)?);
+        if own_outputs {
+            self.outputs = Some(crate::runtime::outputs::Outputs::new(&self.agent, source));
+        }
+        Ok(())
+    }
+
+    /// Gives the agent a command (recorded when the run is).
+    pub fn command(&mut self, c: Command) -> Result<(), common::command::Refusal> {
+        if let Some(r) = self.recorder.as_mut() {
+            r.command(&crate::runtime::AgentCommand::Do(c.clone()));
+        }
+        self.agent.on_command(c)
+    }
+
+    /// Closes the recording, with the run's digest.
+    pub fn finish_recording(&mut self) -> Option<crate::record::RecordSummary> {
+        self.recorder.take().map(|r| r.finish(Some(&self.agent)))
     }
 
     /// Session time, seconds.
@@ -256,23 +323,46 @@ impl Rig {
     /// own teleop path instead, so this is only for tests).
     pub fn step(&mut self) -> StepEvents {
         let drive = self.drive_override.unwrap_or(self.cmd);
-        let out = self.sim.step(SIM_DT_S, drive.v_mps, drive.omega_rps);
+        let mut out = self.sim.step(SIM_DT_S, drive.v_mps, drive.omega_rps);
         let mut ev = StepEvents::default();
-        if let Some(o) = out.odom {
-            self.agent.on_odom(o);
+        // The sensors' outputs reach the agent as the runtime hands them over (and in its
+        // order), so that a recording of this run replays through the runtime call for call.
+        let t_inputs = stages::thread_cpu_ms();
+        let scan = out.scan.take();
+        let mut inputs: Vec<Input> = Vec::with_capacity(2 + out.imu.len() + out.gnss.len());
+        inputs.extend(out.odom.map(Input::Odom));
+        inputs.extend(out.imu.iter().copied().map(Input::Imu));
+        inputs.extend(std::mem::take(&mut out.gnss).into_iter().map(Input::Gnss));
+        for input in &inputs {
+            if let Some(r) = self.recorder.as_mut() {
+                r.input(input);
+            }
+            crate::runtime::deliver(&mut self.agent, input);
         }
-        for s in &out.imu {
-            self.agent.on_imu(s);
+        if let Some(times) = self.stage_times.as_mut() {
+            // GNSS fusion moves the frame, and the map follows: part of the robot's load.
+            times.add("odom_imu_gnss", stages::thread_cpu_ms() - t_inputs);
         }
-        for s in &out.gnss {
-            self.agent.on_gnss(s);
-        }
-        if let Some(scan) = &out.scan {
+        let scan_stamp = scan.as_ref().map(|s| s.stamp_s);
+        if let Some(scan) = scan {
             let t0 = Instant::now();
             match self.scan_mode {
-                ScanMode::Localised => ev.slam_failed = self.agent.on_scan(scan).slam_failed,
+                ScanMode::Localised => {
+                    let input = Input::Scan(scan);
+                    if let Some(r) = self.recorder.as_mut() {
+                        r.input(&input);
+                    }
+                    ev.slam_failed = match (self.stage_times.as_mut(), &input) {
+                        // Timed by stage: the same agent call, with a probe.
+                        (Some(times), Input::Scan(s)) => {
+                            times.begin_sweep();
+                            self.agent.on_scan_probed(s, times).slam_failed
+                        }
+                        _ => crate::runtime::deliver(&mut self.agent, &input).slam_failed,
+                    };
+                }
                 ScanMode::TruthPoses => {
-                    let (points, origin, robot) = self.truth_sweep(scan);
+                    let (points, origin, robot) = self.truth_sweep(&scan);
                     if let Err(e) =
                         self.agent
                             .map_at_given_pose(points, origin, &robot, scan.stamp_s)
@@ -284,8 +374,8 @@ impl Rig {
             self.scan.add(t0.elapsed().as_secs_f64() * 1e3);
             ev.scan = true;
         }
-        if ev.scan && self.own_tiles {
-            let stamp = out.scan.as_ref().map_or(self.sim.time_s(), |s| s.stamp_s);
+        if ev.scan && self.own_tiles && self.outputs.is_none() {
+            let stamp = scan_stamp.unwrap_or(self.sim.time_s());
             let changed = self.agent.take_changed_tiles();
             let agent = &self.agent;
             let tiles = self
@@ -299,7 +389,7 @@ impl Rig {
                 }
             }
         }
-        if out.scan.is_some() {
+        if scan_stamp.is_some() {
             // The agent's localisation against the truth, right after the scan.
             if let Some(est) = self.agent.localiser().pose_now() {
                 let truth = self.sim.truth_pose();
@@ -314,10 +404,14 @@ impl Rig {
                 self.loc.tilt_mean_deg +=
                     (tilt - self.loc.tilt_mean_deg) / f64::from(self.loc.scans);
                 if trace_enabled() {
+                    let h = self.agent.localiser().health();
                     eprintln!(
-                        "trace scan t {:.1} {} mapped {}",
+                        "trace scan t {:.1} {} slam inliers {:.2} iter {} degenerate {} mapped {}",
                         self.t_s(),
                         self.pose_error_text(),
+                        h.inlier_ratio,
+                        h.iterations,
+                        h.degenerate,
                         self.agent.scans_not_mapped()
                     );
                 }
@@ -340,11 +434,36 @@ impl Rig {
         if t + 1e-9 >= self.next_control_s {
             self.next_control_s += CONTROL_DT_S;
             let t0 = Instant::now();
+            let c0 = stages::thread_cpu_ms();
             if self.agent.plan_if_due(t) {
                 self.plan.add(t0.elapsed().as_secs_f64() * 1e3);
+                if let Some(times) = self.stage_times.as_mut() {
+                    times.add("planning", stages::thread_cpu_ms() - c0);
+                }
             }
+            let c1 = stages::thread_cpu_ms();
             self.cmd = self.agent.control(t);
+            if let Some(times) = self.stage_times.as_mut() {
+                times.add("control", stages::thread_cpu_ms() - c1);
+            }
+            if let Some(r) = self.recorder.as_mut() {
+                r.control(t, &self.agent, self.cmd);
+            }
             ev.control = true;
+        }
+        if let Some(o) = self.outputs.as_mut() {
+            let counters = crate::runtime::outputs::LoopCounters {
+                collisions: self.collisions,
+                ..Default::default()
+            };
+            o.publish(
+                None,
+                self.recorder.as_mut(),
+                &mut self.agent,
+                t,
+                ev.scan,
+                &counters,
+            );
         }
         let p = self.sim.truth_pose().translation.vector;
         let d = (p.x - self.last_truth.0).hypot(p.y - self.last_truth.1);
@@ -493,6 +612,12 @@ pub fn run_goal_rig(
     opts: &HeadlessOptions,
 ) -> anyhow::Result<(MissionReport, Rig)> {
     let mut rig = Rig::new(scenario, cfg, opts, "sim")?;
+    if let Some(m) = &opts.mcap {
+        rig.record_to(m, &format!("sim:{}", scenario.name), true)?;
+    }
+    if opts.time_stages {
+        rig.stage_times = Some(stages::StageTimes::default());
+    }
     let wall = Instant::now();
     // Let the first scans arrive so the map frame is anchored before the goal is converted.
     while rig.agent.scans() < 3 && rig.t_s() < 5.0 {
@@ -503,7 +628,8 @@ pub fn run_goal_rig(
         target,
         tolerance_m: 0.0,
     };
-    if let Err(e) = rig.agent.on_command(Command::at(rig.t_s(), goal)) {
+    let t = rig.t_s();
+    if let Err(e) = rig.command(Command::at(t, goal)) {
         anyhow::bail!("{e}");
     }
     let goal_m = rig
@@ -573,7 +699,10 @@ pub fn run_goal_rig(
         localisation: rig.loc,
         trajectory_m: rig.trajectory.clone(),
         map_digest: common::grid::map_digest(&rig.agent.all_tiles()),
+        record: None,
     };
+    let mut report = report;
+    report.record = rig.finish_recording();
     Ok((report, rig))
 }
 
@@ -613,6 +742,9 @@ pub struct TeachRepeatReport {
     pub scans_not_mapped: u64,
     /// [`common::grid::map_digest`] of the robot's map at the end.
     pub map_digest: String,
+    /// The recording (`--mcap`), with the run's digest.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub record: Option<crate::record::RecordSummary>,
 }
 
 /// Teach along the scenario's teach path by teleop, add obstacles, return home along the route.
@@ -627,11 +759,14 @@ pub fn run_teach_repeat(
         .clone()
         .ok_or_else(|| anyhow::anyhow!("scenario {} has no [teach] route", scenario.name))?;
     let mut rig = Rig::new(scenario, cfg, opts, "sim")?;
+    if let Some(m) = &opts.mcap {
+        rig.record_to(m, &format!("sim:{}", scenario.name), true)?;
+    }
     while rig.agent.scans() < 3 {
         rig.step();
     }
     let t = rig.t_s();
-    rig.agent.on_command(Command::at(
+    rig.command(Command::at(
         t,
         CommandKind::Record {
             name: "teach".into(),
@@ -648,7 +783,7 @@ pub fn run_teach_repeat(
             let (v, w) = driver.command(&rig.truth());
             seq += 1;
             let t = rig.t_s();
-            rig.agent.on_command(Command::at(
+            rig.command(Command::at(
                 t,
                 CommandKind::Drive {
                     seq,
@@ -685,8 +820,7 @@ pub fn run_teach_repeat(
         }
     }
     let t = rig.t_s();
-    rig.agent
-        .on_command(Command::at(t, CommandKind::StopRecording))?;
+    rig.command(Command::at(t, CommandKind::StopRecording))?;
     let route = rig
         .agent
         .take_taught_route()
@@ -703,7 +837,7 @@ pub fn run_teach_repeat(
     }
     let collisions_before = rig.collisions;
     let t = rig.t_s();
-    rig.agent.on_command(Command::at(
+    rig.command(Command::at(
         t,
         CommandKind::Repeat {
             route: route.clone(),
@@ -895,6 +1029,7 @@ pub fn run_teach_repeat(
         time_s: rig.t_s() - t_start,
         scans_not_mapped: rig.agent.scans_not_mapped(),
         map_digest: common::grid::map_digest(&rig.agent.all_tiles()),
+        record: rig.finish_recording(),
     })
 }
 

@@ -5,6 +5,7 @@
 //! On stop (SIGINT/SIGTERM) the base gets a zero command before the bus closes.
 
 use crate::bus::{BusConfig, BusHandle};
+use crate::runtime::faults::FaultLog;
 use crate::runtime::outputs::{apply_command, LoopCounters, Outputs};
 use crate::runtime::stamps::Topic;
 use crate::runtime::{Input, Runtime, RuntimeLimits};
@@ -36,6 +37,10 @@ pub trait Base: Send {
     fn stop(&mut self) -> anyhow::Result<()> {
         self.drive(Cmd::default())
     }
+    /// What the base did, for the run's summary (`null`: nothing to say).
+    fn report(&self) -> serde_json::Value {
+        serde_json::Value::Null
+    }
 }
 
 /// A base that only logs (a robot driven by hand, or mapping only).
@@ -65,6 +70,10 @@ pub struct RobotRun {
     pub base: Box<dyn Base>,
     /// The session record's `source` (`ros2`, `vlp16-udp+nmea-tcp`, ...).
     pub source_name: String,
+    /// Print every GNSS fix the agent takes as a JSON line on stdout (`{"fix": {...}}`).
+    pub print_fixes: bool,
+    /// Record the session to MCAP (`--mcap`).
+    pub record: Option<crate::record::RecordOptions>,
 }
 
 fn wall_unix_ms() -> u64 {
@@ -87,13 +96,34 @@ pub fn run_robot(mut r: RobotRun, stop: Arc<AtomicBool>) -> anyhow::Result<serde
     r.base.drive(Cmd::default())?;
     tracing::info!("robot {} waiting for its first sensor message", r.robot);
     let Some((first, rt)) = first_input(&rx, &stop, &r)? else {
+        // The drivers finish before their I/O runtimes go (they wait on its timers).
+        for t in threads {
+            let _ = t.join();
+        }
         return close(bus, r.base.as_mut(), None);
     };
     let mut rt = rt;
     let mut outputs = Outputs::new(rt.agent(), &r.source_name);
+    let mut rec = match &r.record {
+        Some(opts) => {
+            let cfg = rt.agent().config();
+            let meta = crate::record::SessionMeta {
+                identity: rt.agent().identity().clone(),
+                t0_s: rt.t0_s(),
+                source: r.source_name.clone(),
+                inputs: r.inputs.clone(),
+                config_files: opts.config_files.clone(),
+                datum: cfg.datum,
+                config_digest: crate::record::config_digest(cfg),
+            };
+            Some(crate::record::SessionRecorder::start(opts, &meta, cfg)?)
+        }
+        None => None,
+    };
     let mut clock = LoopClock::default();
     let mut pending = Some(first);
-    let mut last_faults: Vec<String> = Vec::new();
+    let mut fault_log = FaultLog::default();
+    let mut last_rec_faults: Vec<String> = Vec::new();
     while !stop.load(Ordering::Relaxed) {
         let event = match pending.take() {
             Some(e) => Some(e),
@@ -110,47 +140,101 @@ pub fn run_robot(mut r: RobotRun, stop: Arc<AtomicBool>) -> anyhow::Result<serde
         if let Some(e) = event {
             match e {
                 SourceEvent::Input(input) => {
+                    if let Some(rec) = rec.as_mut() {
+                        rec.input(&input);
+                    }
                     if let crate::runtime::Admitted::Yes { scan } = rt.on_input(input) {
                         scanned = scan;
                         if let Some(t) = rt.newest_s() {
                             clock.heard(t);
                         }
                     }
+                    if let Some(f) = rt.take_new_fix().filter(|_| r.print_fixes) {
+                        print_line(&serde_json::json!({ "fix": f }));
+                    }
                 }
                 SourceEvent::Undecodable(topic, why) => {
                     rt.count_undecodable(topic);
                     tracing::debug!("undecodable {topic} message: {why}");
+                    if let Some(rec) = rec.as_mut() {
+                        rec.undecodable(&topic.to_string(), &why, clock.now_s());
+                    }
                 }
                 SourceEvent::Ended(topic, why) => tracing::warn!("{topic} driver ended: {why}"),
             }
         }
         let now = clock.now_s();
         while let Some(cmd) = bus.try_recv() {
-            apply_command(rt.agent_mut(), now, cmd);
+            let applied = apply_command(rt.agent_mut(), now, cmd);
+            if let (Some(rec), Some(c)) = (rec.as_mut(), applied) {
+                rec.command(&c);
+            }
         }
         if let Some(cmd) = rt.control(now) {
+            if let Some(rec) = rec.as_mut() {
+                // The control time a replay runs control at (this loop's clock is the wall's).
+                rec.control(now, rt.agent(), cmd);
+            }
             if let Err(e) = r.base.drive(cmd) {
                 tracing::warn!("base command: {e:#}");
             }
         }
-        let faults: Vec<String> = rt.faults(now).iter().map(ToString::to_string).collect();
-        if faults != last_faults {
-            for f in faults.iter().filter(|f| !last_faults.contains(f)) {
+        let in_force = rt.faults(now);
+        let (began, ended) = fault_log.note(&in_force);
+        for f in in_force.iter().filter(|f| began.contains(&f.topic)) {
+            tracing::warn!("{f}");
+            if let Some(rec) = rec.as_mut() {
+                rec.log(
+                    record::foxglove::level::WARNING,
+                    "runtime",
+                    &f.to_string(),
+                    now,
+                );
+            }
+        }
+        let rec_faults = crate::run::live::recording_faults(rec.as_ref());
+        if rec_faults != last_rec_faults {
+            for f in rec_faults.iter().filter(|f| !last_rec_faults.contains(f)) {
                 tracing::warn!("{f}");
             }
-            last_faults = faults.clone();
+            last_rec_faults = rec_faults.clone();
         }
+        for topic in ended {
+            tracing::info!("{topic} is back");
+        }
+        let mut faults: Vec<String> = in_force.iter().map(ToString::to_string).collect();
+        faults.extend(rec_faults);
         let counters = LoopCounters {
             collisions: 0,
             bad_inputs: rt.bad_inputs(),
             faults,
         };
-        outputs.publish(&bus, rt.agent_mut(), now, scanned, &counters);
+        outputs.publish(
+            Some(&bus),
+            rec.as_mut(),
+            rt.agent_mut(),
+            now,
+            scanned,
+            &counters,
+        );
     }
     for t in threads {
         let _ = t.join();
     }
-    close(bus, r.base.as_mut(), Some(&rt))
+    let record = rec.map(|rec| rec.finish(Some(rt.agent())));
+    let mut summary = close(bus, r.base.as_mut(), Some((&rt, &fault_log)))?;
+    if let Some(record) = record {
+        summary["record"] = serde_json::to_value(record)?;
+    }
+    Ok(summary)
+}
+
+/// One JSON line on stdout, flushed (a reader may act on it at once).
+fn print_line(v: &serde_json::Value) {
+    use std::io::Write;
+    let mut o = std::io::stdout().lock();
+    let _ = writeln!(o, "{v}");
+    let _ = o.flush();
 }
 
 /// Waits for the first decodable message to start the session clock.
@@ -189,22 +273,35 @@ fn first_input(
     Ok(None)
 }
 
+/// The summary: what the agent took in and made of it, the runtime's counts, the sensor faults
+/// that came and went, and what the base did.
 fn close(
     bus: BusHandle,
     base: &mut dyn Base,
-    rt: Option<&Runtime>,
+    rt: Option<(&Runtime, &FaultLog)>,
 ) -> anyhow::Result<serde_json::Value> {
     if let Err(e) = base.stop() {
         tracing::warn!("stopping the base: {e:#}");
     }
     bus.close();
     Ok(match rt {
-        Some(rt) => serde_json::json!({
-            "scans": rt.agent().scans(),
-            "depth_frames": rt.agent().depth_frames(),
-            "counts": rt.counts(),
-        }),
-        None => serde_json::json!({ "scans": 0 }),
+        Some((rt, faults)) => {
+            let a = rt.agent();
+            let tiles = a.all_tiles();
+            serde_json::json!({
+                "scans": a.scans(),
+                "depth_frames": a.depth_frames(),
+                "map": {
+                    "scans_mapped": u64::from(a.scans()).saturating_sub(a.scans_not_mapped()),
+                    "tiles": tiles.len(),
+                    "known_cells": tiles.iter().map(|t| t.known_cells()).sum::<usize>(),
+                },
+                "counts": rt.counts(),
+                "faults": faults,
+                "base": base.report(),
+            })
+        }
+        None => serde_json::json!({ "scans": 0, "base": base.report() }),
     })
 }
 

@@ -23,6 +23,9 @@ use std::time::Duration;
 pub enum Ros2Input {
     /// `sensor_msgs/msg/PointCloud2` from the LiDAR.
     Lidar,
+    /// `velodyne_msgs/msg/VelodyneScan` from a VLP-16 driver: its raw packets, decoded and cut
+    /// into sweeps here (`sensing::velodyne`), as the driver's own cloud node would.
+    VelodynePackets,
     /// `sensor_msgs/msg/PointCloud2` from the depth camera.
     Depth,
     /// `nav_msgs/msg/Odometry`.
@@ -38,7 +41,7 @@ pub enum Ros2Input {
 impl Ros2Input {
     fn topic(self) -> Topic {
         match self {
-            Ros2Input::Lidar => Topic::Lidar,
+            Ros2Input::Lidar | Ros2Input::VelodynePackets => Topic::Lidar,
             Ros2Input::Depth => Topic::Depth,
             Ros2Input::Odom => Topic::Odom,
             Ros2Input::Imu => Topic::Imu,
@@ -50,6 +53,7 @@ impl Ros2Input {
     fn ros_type(self) -> RosType {
         match self {
             Ros2Input::Lidar | Ros2Input::Depth => keys::POINT_CLOUD2,
+            Ros2Input::VelodynePackets => keys::VELODYNE_SCAN,
             Ros2Input::Odom => keys::ODOMETRY,
             Ros2Input::Imu => keys::IMU,
             Ros2Input::Fix => keys::NAV_SAT_FIX,
@@ -144,11 +148,18 @@ impl Ros2Link {
                 pump(handle, sub, what.topic(), move |c| {
                     let f = frames.read().map(|f| f.clone()).unwrap_or_default();
                     let scan = convert::cloud_to_scan(&c, &f, &mount);
-                    Ok(if what == Ros2Input::Lidar {
+                    Ok(vec![if what == Ros2Input::Lidar {
                         Input::Scan(scan)
                     } else {
                         Input::Depth(scan)
-                    })
+                    }])
+                })
+            }
+            Ros2Input::VelodynePackets => {
+                let sub = self.rt.block_on(self.bus.subscribe(topic, &ty, raw_cdr))?;
+                let mut packets = PacketsToSweeps::default();
+                pump(handle, sub, what.topic(), move |bytes| {
+                    packets.sweeps(&bytes)
                 })
             }
             Ros2Input::Odom => {
@@ -157,7 +168,7 @@ impl Ros2Link {
                     .block_on(self.bus.subscribe(topic, &ty, cdr::decode_odometry))?;
                 pump(handle, sub, what.topic(), |o| {
                     convert::odometry(&o)
-                        .map(Input::Odom)
+                        .map(|o| vec![Input::Odom(o)])
                         .ok_or_else(|| "odometry with a non-finite value".to_string())
                 })
             }
@@ -167,7 +178,7 @@ impl Ros2Link {
                     .block_on(self.bus.subscribe(topic, &ty, cdr::decode_imu))?;
                 pump(handle, sub, what.topic(), move |m| {
                     let f = frames.read().map(|f| f.clone()).unwrap_or_default();
-                    Ok(Input::Imu(convert::imu(&m, &f)))
+                    Ok(vec![Input::Imu(convert::imu(&m, &f))])
                 })
             }
             Ros2Input::Fix => {
@@ -175,7 +186,7 @@ impl Ros2Link {
                     self.rt
                         .block_on(self.bus.subscribe(topic, &ty, cdr::decode_nav_sat_fix))?;
                 pump(handle, sub, what.topic(), |f| {
-                    Ok(Input::Fix(convert::fix(&f)))
+                    Ok(vec![Input::Fix(convert::fix(&f))])
                 })
             }
             Ros2Input::Heading => {
@@ -185,7 +196,7 @@ impl Ros2Link {
                     cdr::decode_heading_quaternion,
                 ))?;
                 pump(handle, sub, what.topic(), |h| {
-                    Ok(Input::Heading(convert::heading(&h)))
+                    Ok(vec![Input::Heading(convert::heading(&h))])
                 })
             }
         };
@@ -204,31 +215,34 @@ impl Ros2Link {
     }
 }
 
-/// Receives `sub` until stopped, handing each converted sample to the loop.
+/// Receives `sub` until stopped, handing the inputs each sample converts into to the loop (a
+/// sample may make none, one or several: packets make a sweep now and then).
 fn pump<T: Send + 'static>(
     handle: tokio::runtime::Handle,
     sub: Subscription<T>,
     topic: Topic,
-    convert: impl Fn(T) -> Result<Input, String> + Send + 'static,
+    mut convert: impl FnMut(T) -> Result<Vec<Input>, String> + Send + 'static,
 ) -> SourceStart {
     Box::new(move |tx: Sender<SourceEvent>, stop: Arc<AtomicBool>| {
         handle.block_on(async move {
             while !stop.load(Ordering::Relaxed) {
                 let r = tokio::time::timeout(Duration::from_millis(100), sub.recv()).await;
-                let event = match r {
+                let events = match r {
                     Err(_) => continue,
                     Ok(None) => {
                         let _ = tx.send(SourceEvent::Ended(topic, "session closed".into()));
                         return;
                     }
-                    Ok(Some(Err(e))) => SourceEvent::Undecodable(topic, describe(&e)),
+                    Ok(Some(Err(e))) => vec![SourceEvent::Undecodable(topic, describe(&e))],
                     Ok(Some(Ok(m))) => match convert(m) {
-                        Ok(i) => SourceEvent::Input(i),
-                        Err(why) => SourceEvent::Undecodable(topic, why),
+                        Ok(inputs) => inputs.into_iter().map(SourceEvent::Input).collect(),
+                        Err(why) => vec![SourceEvent::Undecodable(topic, why)],
                     },
                 };
-                if tx.send(event).is_err() {
-                    return;
+                for event in events {
+                    if tx.send(event).is_err() {
+                        return;
+                    }
                 }
             }
         })
@@ -237,6 +251,47 @@ fn pump<T: Send + 'static>(
 
 fn describe(e: &CdrError) -> String {
     format!("CDR: {e}")
+}
+
+/// A payload taken as it is (its own decoder runs in the driver).
+fn raw_cdr(bytes: &[u8]) -> Result<Vec<u8>, CdrError> {
+    Ok(bytes.to_vec())
+}
+
+/// `velodyne_msgs/msg/VelodyneScan` messages into sweeps: one assembler across messages, because
+/// a driver's message need not start where a rotation does; sweeps are cut at 0 deg azimuth.
+#[derive(Debug, Default)]
+struct PacketsToSweeps {
+    asm: Option<sensing::velodyne::ScanAssembler>,
+}
+
+impl PacketsToSweeps {
+    /// The sweeps one message completes; `Err` when it is not a VelodyneScan or none of its
+    /// packets is a VLP-16 data packet.
+    fn sweeps(&mut self, bytes: &[u8]) -> Result<Vec<Input>, String> {
+        let msg = sensing::velodyne::rosbag::decode_velodyne_scan(bytes)
+            .map_err(|e| format!("VelodyneScan: {e}"))?;
+        let asm = self.asm.get_or_insert_with(|| {
+            sensing::velodyne::ScanAssembler::new(sensing::velodyne::VelodyneConfig::default())
+        });
+        let malformed_before = asm.stats().malformed();
+        let mut out = Vec::new();
+        for p in &msg.packets {
+            out.extend(
+                asm.push_packet(&p.data, p.stamp_s)
+                    .iter()
+                    .map(|s| Input::Scan(s.to_scan())),
+            );
+        }
+        let malformed = asm.stats().malformed() - malformed_before;
+        if malformed > 0 && malformed as usize == msg.packets.len() {
+            return Err(format!("VelodyneScan: all {malformed} packets malformed"));
+        }
+        if malformed > 0 {
+            tracing::debug!("VelodyneScan: {malformed} malformed packets skipped");
+        }
+        Ok(out)
+    }
 }
 
 /// `cmd_vel` out.

@@ -194,6 +194,7 @@ fn gnss_messages(text: &str, stamp_s: f64) -> (Option<NavFix>, Option<Heading>) 
                     alt_m: g.alt_hae_m().unwrap_or(f64::NAN),
                     status,
                     covariance_m2: Some([var, 0.0, 0.0, 0.0, var, 0.0, 0.0, 0.0, 4.0 * var]),
+                    gga_quality: None,
                 }),
                 None,
             )
@@ -359,13 +360,12 @@ pub fn serve_world(
             put(&pubs.odom, cdr::encode_odometry(&msg));
         }
         if !silenced(SilencedStream::Imu, t_s) {
-            let omega = simu.truth_velocity().1;
             for s in &out.imu {
                 let msg = Imu {
                     stamp_s: epoch_s + s.t_s,
                     frame_id: "base_link".into(),
                     orientation: None,
-                    angular_velocity_rps: [0.0, 0.0, omega],
+                    angular_velocity_rps: s.gyro_rps.unwrap_or([f64::NAN; 3]),
                     linear_acceleration_mps2: s.accel_mps2,
                 };
                 put(&pubs.imu, cdr::encode_imu(&msg));

@@ -121,9 +121,94 @@ impl Watchdog {
     }
 }
 
+/// The faults that came and went over a run, per input: how often each began and the longest
+/// silence, for the run's summary (the status shows only the faults in force).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct FaultLog {
+    /// Per input that had a fault, in order of first appearance.
+    pub inputs: Vec<FaultEpisodes>,
+    #[serde(skip)]
+    active: Vec<Topic>,
+}
+
+/// The episodes of one input's fault.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FaultEpisodes {
+    /// The input.
+    pub topic: Topic,
+    /// How often the fault began.
+    pub episodes: u32,
+    /// The longest silence seen, seconds (0 for an input never heard at all).
+    pub longest_silent_s: f64,
+    /// The fault stopped the base.
+    pub stopped_base: bool,
+}
+
+impl FaultLog {
+    /// Takes the faults in force now; returns the inputs whose fault began, and those whose
+    /// fault ended, since the last call.
+    pub fn note(&mut self, faults: &[Fault]) -> (Vec<Topic>, Vec<Topic>) {
+        let mut began = Vec::new();
+        for f in faults {
+            let i = match self.inputs.iter().position(|e| e.topic == f.topic) {
+                Some(i) => i,
+                None => {
+                    self.inputs.push(FaultEpisodes {
+                        topic: f.topic,
+                        episodes: 0,
+                        longest_silent_s: 0.0,
+                        stopped_base: false,
+                    });
+                    self.inputs.len() - 1
+                }
+            };
+            let e = &mut self.inputs[i];
+            if !self.active.contains(&f.topic) {
+                e.episodes += 1;
+                began.push(f.topic);
+            }
+            e.longest_silent_s = e.longest_silent_s.max(f.silent_s.unwrap_or(0.0));
+            e.stopped_base |= f.stops_base;
+        }
+        let now: Vec<Topic> = faults.iter().map(|f| f.topic).collect();
+        let ended = self
+            .active
+            .iter()
+            .filter(|t| !now.contains(t))
+            .copied()
+            .collect();
+        self.active = now;
+        (began, ended)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_log_counts_episodes_and_the_longest_silence() {
+        let mut w = Watchdog::new(SilenceLimits::default(), &[Topic::Lidar, Topic::Odom]);
+        let mut log = FaultLog::default();
+        // Odometry falls silent twice (0.8 s, then 1.5 s); the LiDAR never.
+        let mut t = 0.0;
+        while t < 6.0 {
+            w.heard(Topic::Lidar, t);
+            if !((1.0..1.8).contains(&t) || (3.0..4.5).contains(&t)) {
+                w.heard(Topic::Odom, t);
+            }
+            let (began, _) = log.note(&w.faults(t));
+            assert!(began.is_empty() || began == [Topic::Odom], "{began:?}");
+            t += 0.05;
+        }
+        assert_eq!(log.inputs.len(), 1, "{log:?}");
+        let e = &log.inputs[0];
+        assert_eq!(
+            (e.topic, e.episodes, e.stopped_base),
+            (Topic::Odom, 2, false)
+        );
+        assert!((e.longest_silent_s - 1.5).abs() < 0.1, "{e:?}");
+    }
 
     #[test]
     fn a_silent_lidar_stops_the_base_within_its_timeout_and_releases_it() {

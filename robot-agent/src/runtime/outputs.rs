@@ -1,11 +1,13 @@
 //! What a running agent tells the bus, and when: its session once the map frame is known,
 //! changed tiles after each sweep (the tile policy), the taught route when one is finished, the
 //! pose at 10 Hz, the status at 2 Hz and on every change of mode or phase, and the path when it
-//! changes. The live simulator and the real-robot runtime publish through this one place.
+//! changes. The live simulator and the real-robot runtime publish through this one place, to the
+//! bus and, when recording, to the recording (a replay or a headless run: to the recording only).
 
 use crate::bus::tiles::{TilePolicy, TilePublisher};
 use crate::bus::translate::{self, RuntimeCounters};
 use crate::bus::BusHandle;
+use crate::record::SessionRecorder;
 use agent::localiser::FrameKind;
 use agent::Agent;
 use common::command::{BoundsM, RobotContext};
@@ -60,17 +62,20 @@ impl Outputs {
         }
     }
 
-    /// Publishes what fell due at session time `t_s`; `scanned`: a sweep was processed since the
-    /// last call.
+    /// Publishes what fell due at session time `t_s` to the bus and the recording (either may be
+    /// absent); `scanned`: a sweep was processed since the last call.
     pub fn publish(
         &mut self,
-        bus: &BusHandle,
+        bus: Option<&BusHandle>,
+        mut rec: Option<&mut SessionRecorder>,
         agent: &mut Agent,
         t_s: f64,
         scanned: bool,
         counters: &LoopCounters,
     ) {
-        bus.set_context(context(agent, t_s));
+        if let Some(bus) = bus {
+            bus.set_context(context(agent, t_s));
+        }
         if scanned {
             self.scan_times.push_back(t_s);
         }
@@ -84,7 +89,7 @@ impl Outputs {
         if !self.session_sent {
             if let Some((frame, datum)) = agent.map_frame() {
                 let lattice = agent.lattice();
-                bus.publish_session(&Session {
+                let session = Session {
                     session_id: agent.identity().session_id.clone(),
                     robot: agent.identity().robot.clone(),
                     start_unix_ms: agent.unix_ms(0.0),
@@ -98,7 +103,13 @@ impl Outputs {
                     tile_cells: lattice.tile_cells,
                     source: self.source.clone(),
                     agent_version: env!("CARGO_PKG_VERSION").into(),
-                });
+                };
+                if let Some(bus) = bus {
+                    bus.publish_session(&session);
+                }
+                if let Some(r) = rec.as_deref_mut() {
+                    r.session(&session, t_s);
+                }
                 self.session_sent = true;
             }
         }
@@ -109,20 +120,34 @@ impl Outputs {
                 .tiles
                 .publish(t_s, &changed, |i| a.tile_cells(i), false)
             {
-                bus.publish_tile(tile.index, common::grid::encode_tile(&tile));
+                let encoded = common::grid::encode_tile(&tile);
+                if let Some(r) = rec.as_deref_mut() {
+                    r.tile(&tile, &encoded, t_s);
+                }
+                if let Some(bus) = bus {
+                    bus.publish_tile(tile.index, encoded);
+                }
             }
         }
         if let Some(route) = agent.take_taught_route() {
-            bus.publish_route(&translate::route_to_wire(&route));
+            let route = translate::route_to_wire(&route);
+            if let Some(bus) = bus {
+                bus.publish_route(&route);
+            }
+            if let Some(r) = rec.as_deref_mut() {
+                r.route(&route, t_s);
+            }
         }
         if t_s >= self.next_pose_s {
             self.next_pose_s = (self.next_pose_s + POSE_PERIOD_S).max(t_s);
             if let Some(p) = agent.pose(t_s) {
-                bus.publish_pose(&translate::pose_to_wire(
-                    &p,
-                    agent.unix_ms(t_s),
-                    self.pose_seq,
-                ));
+                let pose = translate::pose_to_wire(&p, agent.unix_ms(t_s), self.pose_seq);
+                if let Some(bus) = bus {
+                    bus.publish_pose(&pose);
+                }
+                if let Some(r) = rec.as_deref_mut() {
+                    r.pose(&pose, p.lla.map(|l| l.2), t_s);
+                }
                 self.pose_seq += 1;
             }
         }
@@ -133,7 +158,7 @@ impl Outputs {
                 format!("{}; {}", counters.faults.join("; "), agent_status.reason);
         }
         let state = (agent_status.mode, agent_status.phase, agent_status.driving);
-        let bus_counters = bus.counters();
+        let bus_counters = bus.map(|b| b.counters()).unwrap_or_default();
         let status = translate::status_to_wire(
             &agent_status,
             agent.unix_ms(t_s),
@@ -150,15 +175,26 @@ impl Outputs {
         if t_s >= self.next_status_s || self.last_state != Some(state) {
             self.next_status_s = t_s + STATUS_PERIOD_S;
             self.last_state = Some(state);
-            bus.publish_status(&status);
+            if let Some(bus) = bus {
+                bus.publish_status(&status);
+            }
+            if let Some(r) = rec.as_deref_mut() {
+                r.status(&status, t_s);
+            }
         }
         let path = agent.current_path();
         if path != self.last_path {
-            bus.publish_path(&Path {
+            let wire = Path {
                 t_unix_ms: agent.unix_ms(t_s),
                 goal_id: status.goal_id,
                 points_m: path.iter().map(|p| (p.0 as f32, p.1 as f32)).collect(),
-            });
+            };
+            if let Some(bus) = bus {
+                bus.publish_path(&wire);
+            }
+            if let Some(r) = rec {
+                r.path(&path, t_s);
+            }
             self.last_path = path;
         }
     }
@@ -178,15 +214,14 @@ pub fn context(agent: &Agent, t_s: f64) -> RobotContext {
     }
 }
 
-/// Hands a command from the bus to the agent at session time `t_s`.
-pub fn apply_command(agent: &mut Agent, t_s: f64, cmd: crate::bus::Command) {
-    match cmd {
-        crate::bus::Command::Refused(r) => agent.note_refusal(&r),
-        cmd => {
-            if let Some(kind) = translate::command_to_agent(cmd) {
-                // A refusal is counted and logged by the agent.
-                let _ = agent.on_command(agent::Command::at(t_s, kind));
-            }
-        }
-    }
+/// Hands a command from the bus to the agent at session time `t_s`; returns it as the agent got
+/// it (for a recording).
+pub fn apply_command(
+    agent: &mut Agent,
+    t_s: f64,
+    cmd: crate::bus::Command,
+) -> Option<crate::runtime::AgentCommand> {
+    let c = crate::runtime::AgentCommand::from_bus(t_s, cmd)?;
+    c.apply(agent);
+    Some(c)
 }

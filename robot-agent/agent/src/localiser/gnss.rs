@@ -1,5 +1,5 @@
 //! GNSS state: the latest fix and heading from NMEA sentences, loss detection, whether the map
-//! frame can be anchored, and GNSS goals through the datum (methods.md §2, §5).
+//! frame can be anchored, and GNSS goals through the datum (docs/algorithms.md §2, §5.2).
 
 use super::FixKind;
 use common::geo::{parse_sentence, LocalFrame, NmeaError, Sentence};
@@ -40,11 +40,10 @@ pub struct GnssConfig {
     /// Nor one whose pitch differs from the fresh dual-antenna pitch by more than this (1 deg
     /// of pitch lifts ground 7 m ahead by 12 cm: a step against what the map holds), degrees.
     pub pose_trust_pitch_deg: f64,
-    /// Stored map heights within this distance of the robot follow each GNSS correction of the
-    /// pose's height and tilt (they were seen under the same SLAM drift), metres...
+    /// Stored map heights within this distance of the robot follow each correction of the
+    /// frame's height and tilt (the last quarter tapers), metres: the map's reach for one
+    /// correction, a bound on its cost.
     pub map_follow_radius_m: f64,
-    /// ...if they changed within this long, seconds.
-    pub map_follow_age_s: f64,
     /// Tilt of the SLAM frame estimated from the GNSS track (`[gnss.tilt]`).
     pub tilt: super::tilt::TiltConfig,
 }
@@ -63,8 +62,7 @@ impl Default for GnssConfig {
             pose_trust_residual_m: 0.1,
             pose_jump_max_m: 0.15,
             pose_trust_pitch_deg: 1.0,
-            map_follow_radius_m: 30.0,
-            map_follow_age_s: 20.0,
+            map_follow_radius_m: 300.0,
             tilt: Default::default(),
         }
     }
@@ -278,9 +276,10 @@ pub enum GnssGoalError {
     OutOfRange(f64, f64),
 }
 
-/// A goal given as lat/lon, tracked in the map frame (methods.md §5): the goal is placed relative
-/// to the robot's current fix (`goal = robot + d`, d from the exact ENU difference), re-evaluated
-/// at each new fix so SLAM drift does not bias it, except once within `goal_freeze_distance_m`.
+/// A goal given as lat/lon, tracked in the map frame (docs/algorithms.md §5.2): the goal is placed
+/// relative to the robot's current fix (`goal = robot + d`, d from the exact ENU difference),
+/// re-evaluated at each new fix so SLAM drift does not bias it, except once within
+/// `goal_freeze_distance_m`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct GnssGoal {
     /// Target.

@@ -1,9 +1,9 @@
 //! The localiser: where the robot is, in which frame, and whether that may be trusted.
 //!
 //! In: wheel odometry, IMU specific force, GNSS sentences, LiDAR sweeps. Out: the pose of
-//! `base_link` in `map` ([`PoseMap`]) at each sweep and between sweeps (odometry on top, methods.md
-//! §1), the map frame's anchoring (ENU at a datum or the first pose), and whether a sweep's pose
-//! may be mapped and a teach waypoint taken from it.
+//! `base_link` in `map` ([`PoseMap`]) at each sweep and between sweeps (odometry on top,
+//! docs/algorithms.md §1), the map frame's anchoring (ENU at a datum or the first pose), and
+//! whether a sweep's pose may be mapped and a teach waypoint taken from it.
 //!
 //! Parts: scan-to-map ICP SLAM (`slam`), its frame anchored at the first sweep ([`anchor`]),
 //! pulled towards RTK fixes ([`fusion`]), tilted by gravity (`slam::gravity`) or, without an IMU,
@@ -224,6 +224,10 @@ impl Localiser {
     /// the first sweep: the body frame, which the anchor then turns into the map frame). `Err`:
     /// refused (non-finite or out of order), counted.
     pub fn on_imu(&mut self, s: &ImuSample) -> Result<(), String> {
+        if let Some(w) = s.gyro_rps {
+            // The sweep's rotation for de-skewing (pitch and roll that odometry cannot see).
+            self.slam.push_gyro(s.t_s, w);
+        }
         if !self.gravity_enabled {
             return Ok(());
         }
@@ -409,7 +413,7 @@ impl Localiser {
     }
 
     /// The pose now: `map<-base = map<-odom * odom<-base` with the newest odometry, so the
-    /// controller sees the robot move between SLAM updates (methods.md §1).
+    /// controller sees the robot move between SLAM updates (docs/algorithms.md §1).
     pub fn pose_now(&self) -> Option<PoseMap> {
         if let (Some(m), Some(o)) = (self.map_from_odom, self.last_odom) {
             return Some(PoseMap::from_iso(m * o.pose_odom.to_isometry3(0.0)));
@@ -458,6 +462,12 @@ impl Localiser {
     /// Fix quality at `t_s`.
     pub fn fix_kind(&self, t_s: f64) -> FixKind {
         self.gnss.fix_kind(t_s)
+    }
+
+    /// Whether a fresh RTK fixed fix and a heading at `t_s` would anchor the map frame in ENU
+    /// at the first sweep (so a runtime can hold the first sweep until they come).
+    pub fn can_anchor(&self, t_s: f64) -> bool {
+        self.gnss.can_anchor(t_s)
     }
 
     /// True when the map was anchored by GNSS and there is no fresh fix: the robot carries on

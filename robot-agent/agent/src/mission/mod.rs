@@ -264,7 +264,8 @@ impl MissionMachine {
             }
             (State::Goal, Event::GoalReached) => (State::Idle, Outcome::Done),
             (State::Repeat(r), Event::RouteFinished) => {
-                self.nav.stop("route finished");
+                // Finished is done, not stopped: it must not look like the operator's STOP.
+                self.nav.finish("route finished");
                 self.ended_repeat = Some(r);
                 (State::Idle, Outcome::Done)
             }
@@ -456,5 +457,29 @@ mod tests {
         m.transition(goal()).unwrap();
         m.transition(Event::GoalReached).unwrap();
         assert_eq!(m.mode(), Mode::Idle);
+    }
+
+    #[test]
+    fn a_finished_route_is_reached_not_stopped() {
+        let mut m = machine();
+        let follower = RouteFollower::new(
+            repeat::RepeatConfig::default(),
+            &[(0.0, 0.0), (5.0, 0.0)],
+            &common::geom::Pose2::default(),
+        );
+        m.transition(Event::Repeat(Box::new(Repeat {
+            follower,
+            route_id: "r".into(),
+            name: "lap".into(),
+            paused: false,
+            last: None,
+            view: None,
+        })))
+        .unwrap();
+        m.transition(Event::RouteFinished).unwrap();
+        assert_eq!(m.phase(false).0, Phase::Reached);
+        assert_eq!(m.phase(false).1, "route finished");
+        m.transition(Event::Stop(String::new())).unwrap();
+        assert_eq!(m.phase(false).0, Phase::Stopped, "STOP stays Stopped");
     }
 }

@@ -1,4 +1,4 @@
-//! The go-to-goal mission: goal in, path out, state reported (methods.md §5).
+//! The go-to-goal mission: goal in, path out, state reported (docs/algorithms.md §5).
 //!
 //! The navigator owns the goal, the mission state and the path. It plans when asked (the agent's
 //! loop calls [`Navigator::wants_replan`] at its own rate and times [`Navigator::replan`]); it never
@@ -65,6 +65,8 @@ pub struct Navigator {
     planner: Planner,
     floods: Floods,
     goal: Option<Goal>,
+    /// The last goal set, kept after it was reached or given up (status reports it).
+    last_goal: Option<Goal>,
     state: Phase,
     reason: String,
     path: Vec<(f64, f64)>,
@@ -84,6 +86,7 @@ impl Navigator {
             planner: Planner::new(),
             floods: Floods::new(),
             goal: None,
+            last_goal: None,
             state: Phase::Idle,
             reason: String::new(),
             path: Vec::new(),
@@ -99,6 +102,7 @@ impl Navigator {
         if goal.tolerance_m <= 0.0 {
             goal.tolerance_m = self.cfg.goal_tolerance_m;
         }
+        self.last_goal = Some(goal.clone());
         self.goal = Some(goal);
         self.state = Phase::Planning;
         self.reason = "new goal".into();
@@ -113,6 +117,20 @@ impl Navigator {
         self.path.clear();
         self.state = Phase::Stopped;
         self.reason = reason.to_string();
+    }
+
+    /// Ends a mission that completed (a route's last waypoint): reached, not stopped.
+    pub fn finish(&mut self, reason: &str) {
+        self.goal = None;
+        self.last_goal = None;
+        self.path.clear();
+        self.state = Phase::Reached;
+        self.reason = reason.to_string();
+    }
+
+    /// The last goal set, also after it was reached or given up.
+    pub fn last_goal(&self) -> Option<&Goal> {
+        self.last_goal.as_ref()
     }
 
     /// Current mission state.

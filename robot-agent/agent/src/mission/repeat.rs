@@ -1,5 +1,5 @@
 //! Repeat: follow a taught route, forward or in reverse, around obstacles that appeared since
-//! (methods.md §7, the Orpheus use case).
+//! (docs/algorithms.md §7.2, the Orpheus use case).
 //!
 //! Per cycle, on the current planning grid:
 //! 1. advance past waypoints the robot has reached;

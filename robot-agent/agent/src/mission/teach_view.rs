@@ -1,5 +1,5 @@
-//! The local traversability seen at teach time (methods.md §7): for every cell within reach of
-//! the driven line, whether it was an obstacle then and how high its ground and top stood.
+//! The local traversability seen at teach time (docs/algorithms.md §7.1): for every cell within
+//! reach of the driven line, whether it was an obstacle then and how high its ground and top stood.
 //!
 //! On the return the robot sees the same ground again from other places and at other times;
 //! where the two views disagree by a few centimetres (grazing angles, grass, the height drift of

@@ -64,7 +64,6 @@ pub struct TerrainMap {
     body: Body,
     corridor_rule: CorridorRule,
     map_follow_radius_m: f64,
-    map_follow_age_s: f64,
     cleared_cells: usize,
 }
 
@@ -86,7 +85,6 @@ impl TerrainMap {
                 newest_evidence_min_points: cfg.repeat.newest_evidence_min_points,
             },
             map_follow_radius_m: cfg.gnss.map_follow_radius_m,
-            map_follow_age_s: cfg.gnss.map_follow_age_s,
             cleared_cells: 0,
         })
     }
@@ -129,12 +127,11 @@ impl TerrainMap {
         self.cleared_cells
     }
 
-    /// The map frame moved (a GNSS or gravity correction): the heights seen recently near the
-    /// robot follow it, so the correction itself draws no false steps between old and new
-    /// sweeps; older cells keep the frame they were seen in.
+    /// The map frame moved (a GNSS or gravity correction): the stored heights within
+    /// `map_follow_radius_m` follow it (the last quarter tapering off), so the correction itself
+    /// draws no false steps between old and new sweeps (docs/algorithms.md §4.13).
     pub fn follow_frame(&mut self, shift: &FrameShift) {
-        self.mapper
-            .follow_frame(shift, self.map_follow_radius_m, self.map_follow_age_s);
+        self.mapper.follow_frame(shift, self.map_follow_radius_m);
     }
 
     /// The planning window around `pose` and the mapper's cells in it: what both the planning

@@ -165,6 +165,7 @@ pub fn decode_nav_sat_fix(msg: &[u8]) -> Result<NavFix, CdrError> {
         alt_m,
         status,
         covariance_m2,
+        gga_quality: None,
     })
 }
 
@@ -295,6 +296,7 @@ mod tests {
             alt_m: 80.0,
             status: FixStatus::Gbas,
             covariance_m2: Some([0.01, 0.0, 0.0, 0.0, 0.01, 0.0, 0.0, 0.0, 0.04]),
+            gga_quality: None,
         };
         assert_eq!(decode_nav_sat_fix(&encode_nav_sat_fix(&f)).unwrap(), f);
         let t = Twist {
@@ -335,6 +337,7 @@ mod tests {
             alt_m: 0.0,
             status: FixStatus::Fix,
             covariance_m2: None,
+            gga_quality: None,
         };
         assert!(decode_nav_sat_fix(&encode_nav_sat_fix(&f)).is_err());
         let no_fix = NavFix {

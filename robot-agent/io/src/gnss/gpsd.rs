@@ -108,16 +108,21 @@ pub fn decode_gpsd_report(line: &str, recv_s: f64) -> Result<Option<GnssEvent>, 
                         alt_m: f64::NAN,
                         status: FixStatus::NoFix,
                         covariance_m2: None,
+                        gga_quality: None,
                     })))
                 }
             };
             if !(lat.abs() <= 90.0 && lon.abs() <= 180.0) {
                 return Err(GpsdError::BadTpv(format!("position ({lat}, {lon})")));
             }
-            let status = match r.status.unwrap_or(1) {
-                2 => FixStatus::Sbas,
-                3 | 4 => FixStatus::Gbas,
-                _ => FixStatus::Fix,
+            // TPV status: 2 DGPS, 3 RTK fixed, 4 RTK float, 5 dead reckoning, 6 GNSS + DR;
+            // 0, 1 and the rest a plain fix.
+            let (status, gga_quality) = match r.status.unwrap_or(1) {
+                2 => (FixStatus::Sbas, 2),
+                3 => (FixStatus::Gbas, 4),
+                4 => (FixStatus::Gbas, 5),
+                5 | 6 => (FixStatus::Fix, 6),
+                _ => (FixStatus::Fix, 1),
             };
             let alt_m = if mode >= 3 {
                 r.alt_hae.or(r.alt).unwrap_or(f64::NAN)
@@ -149,6 +154,7 @@ pub fn decode_gpsd_report(line: &str, recv_s: f64) -> Result<Option<GnssEvent>, 
                 alt_m,
                 status,
                 covariance_m2,
+                gga_quality: Some(gga_quality),
             })))
         }
         "ATT" => Ok(r.heading.filter(|h| h.is_finite()).map(|h| {
@@ -221,6 +227,13 @@ mod tests {
         assert_eq!(f.alt_m, 592.3);
         assert_eq!(f.stamp_s, 1714564801.5);
         assert!((f.covariance_m2.unwrap()[4] - 0.0004).abs() < 1e-12);
+        assert_eq!(f.gga_quality, Some(4));
+        // RTK float says so, though a NavFix status cannot.
+        let float = r#"{"class":"TPV","mode":3,"status":4,"lat":48.1,"lon":11.5,"altHAE":590.0}"#;
+        let Ok(Some(GnssEvent::Fix(f))) = decode_gpsd_report(float, 0.0) else {
+            panic!()
+        };
+        assert_eq!((f.status, f.gga_quality), (FixStatus::Gbas, Some(5)));
         let nofix = r#"{"class":"TPV","mode":1}"#;
         let Ok(Some(GnssEvent::Fix(f))) = decode_gpsd_report(nofix, 7.0) else {
             panic!()

@@ -83,6 +83,7 @@ impl NmeaDecoder {
                     alt_m: g.alt_hae_m().or(g.alt_msl_m).unwrap_or(f64::NAN),
                     status,
                     covariance_m2: None,
+                    gga_quality: Some(g.quality),
                 }))
             }
             Sentence::Hdt(_) | Sentence::Ths(_) | Sentence::Pashr(_) => {

@@ -109,6 +109,16 @@ impl Ros2Publisher {
     pub fn key(&self) -> String {
         self.publisher.key_expr().to_string()
     }
+
+    /// Whether a subscriber matches this publisher now (Zenoh's matching status), so a player
+    /// can wait for its listener instead of sending into the void.
+    pub async fn has_subscribers(&self) -> Result<bool, Ros2Error> {
+        self.publisher
+            .matching_status()
+            .await
+            .map(|s| s.matching())
+            .map_err(zerr)
+    }
 }
 
 /// Publishes `geometry_msgs/msg/Twist` on one topic.

@@ -100,9 +100,16 @@ ros_type!(
     "QuaternionStamped",
     "RIHS01_381add86c6c3160644d228ca342182c7fd6c7fab11c7a85ad817a9cc22dbac6e"
 );
+ros_type!(
+    VELODYNE_SCAN,
+    "velodyne_msgs",
+    "VelodyneScan",
+    "RIHS01_4e4edd7152e8bd604311d8b2e68e4c1b0771c8ce72700de79f6d1418aa242b3c"
+);
 
-/// Every type this crate decodes or encodes.
-pub const ALL_TYPES: [RosType; 7] = [
+/// Every type this crate decodes or encodes (`VelodyneScan`'s payload is decoded by
+/// `sensing::velodyne::rosbag`).
+pub const ALL_TYPES: [RosType; 8] = [
     POINT_CLOUD2,
     ODOMETRY,
     IMU,
@@ -110,6 +117,7 @@ pub const ALL_TYPES: [RosType; 7] = [
     TWIST,
     TF_MESSAGE,
     QUATERNION_STAMPED,
+    VELODYNE_SCAN,
 ];
 
 /// Where the robot's ROS 2 graph is: key form, domain and namespace.

@@ -291,6 +291,14 @@ impl BagReader {
     pub fn next_message(
         &mut self,
     ) -> Result<Option<(i64, Result<VelodyneScanMsg, CdrError>)>, BagError> {
+        Ok(self
+            .next_raw()?
+            .map(|(t_ns, blob)| (t_ns, decode_velodyne_scan(&blob))))
+    }
+
+    /// The next message as recorded: its bag timestamp (ns) and CDR bytes, or `None` at the end
+    /// (what a player sends on unchanged).
+    pub fn next_raw(&mut self) -> Result<Option<(i64, Vec<u8>)>, BagError> {
         let Some(&(id, t_ns)) = self.ids.get(self.next) else {
             return Ok(None);
         };
@@ -304,7 +312,7 @@ impl BagReader {
                 path: self.path.clone(),
                 source,
             })?;
-        Ok(Some((t_ns, decode_velodyne_scan(&blob))))
+        Ok(Some((t_ns, blob)))
     }
 }
 

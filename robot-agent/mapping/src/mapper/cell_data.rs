@@ -1,0 +1,182 @@
+//! What the mapper keeps about one lattice cell: its height evidence as running moments in two
+//! time epochs, where it was seen and judged from, and what the robot's body and the beams
+//! proved about it.
+
+use crate::classify::{CellStats, Class};
+
+/// Running height moments of a cell's points: enough for the mean, the variance, the highest
+/// and the lowest point, and cheap to merge and to shift.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct Moments {
+    pub(super) n: u32,
+    pub(super) sz: f64,
+    pub(super) szz: f64,
+    /// Highest point; a riser's points pull a cell's mean halfway down the step, its top does not.
+    pub(super) zmax: f32,
+    /// Lowest point: the cell's ground when something stands on it.
+    pub(super) zmin: f32,
+}
+
+impl Default for Moments {
+    fn default() -> Self {
+        Self {
+            n: 0,
+            sz: 0.0,
+            szz: 0.0,
+            zmax: f32::NEG_INFINITY,
+            zmin: f32::INFINITY,
+        }
+    }
+}
+
+impl Moments {
+    /// Adds one point at height `z`.
+    #[inline]
+    pub(super) fn add(&mut self, z: f64) {
+        self.n += 1;
+        self.sz += z;
+        self.szz += z * z;
+        self.zmax = self.zmax.max(z as f32);
+        self.zmin = self.zmin.min(z as f32);
+    }
+
+    /// The moments of both point sets together.
+    #[inline]
+    pub(super) fn merged(&self, o: &Moments) -> Moments {
+        Moments {
+            n: self.n + o.n,
+            sz: self.sz + o.sz,
+            szz: self.szz + o.szz,
+            zmax: self.zmax.max(o.zmax),
+            zmin: self.zmin.min(o.zmin),
+        }
+    }
+
+    /// The same points moved up by `dz`.
+    #[inline]
+    pub(super) fn shifted(&self, dz: f64) -> Moments {
+        if self.n == 0 {
+            return *self;
+        }
+        let n = f64::from(self.n);
+        Moments {
+            n: self.n,
+            sz: self.sz + n * dz,
+            szz: self.szz + 2.0 * dz * self.sz + n * dz * dz,
+            zmax: self.zmax + dz as f32,
+            zmin: self.zmin + dz as f32,
+        }
+    }
+
+    /// Count, mean, variance and extremes as the rules read them.
+    #[inline]
+    pub(super) fn stats(&self) -> CellStats {
+        if self.n == 0 {
+            return CellStats::default();
+        }
+        let n = f64::from(self.n);
+        let mean = self.sz / n;
+        CellStats {
+            n: self.n,
+            mean_m: mean,
+            var_m2: (self.szz / n - mean * mean).max(0.0),
+            max_m: f64::from(self.zmax),
+            min_m: f64::from(self.zmin),
+        }
+    }
+}
+
+/// Everything the mapper keeps about one lattice cell.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct CellData {
+    /// Evidence of the newest epoch with observations, and of the one before.
+    pub(super) cur: Moments,
+    pub(super) prev: Moments,
+    /// Closest robot distance each epoch's evidence was seen from, metres.
+    pub(super) cur_range_m: f32,
+    pub(super) prev_range_m: f32,
+    /// Session time evidence was last accepted into the cell, seconds.
+    pub(super) accepted_s: f32,
+    /// Closest robot distance from which this cell was judged a drop-off, metres.
+    pub(super) neg_range_m: f32,
+    /// Closest robot distance from which the cell's current class was judged, metres.
+    pub(super) class_range_m: f32,
+    pub(super) epoch: i64,
+    /// Points far above the cell's ground seen in one scan only, waiting for confirmation.
+    pub(super) pending: Moments,
+    pub(super) pending_scan: u32,
+    /// MapCloud mode: the moments last received, to tell unchanged cells.
+    pub(super) last_cloud: Moments,
+    pub(super) hits: u8,
+    pub(super) last_scan: u32,
+    pub(super) stamp_s: u32,
+    /// A beam crossed the band between `clear_low_m` and the robot's height above this cell's
+    /// ground: the space the robot body needs was seen empty at least once.
+    pub(super) headroom: bool,
+    /// Free space wiped this cell from beyond the processing distance since it was last
+    /// classified: it may be judged again from out there (towards traversable or unknown).
+    pub(super) far_wiped: bool,
+    /// The robot's footprint covered this cell (proprioception), at this ground height.
+    pub(super) driven: bool,
+    pub(super) driven_z: f32,
+    pub(super) class: Class,
+}
+
+impl Default for CellData {
+    fn default() -> Self {
+        Self {
+            cur: Moments::default(),
+            prev: Moments::default(),
+            cur_range_m: f32::INFINITY,
+            prev_range_m: f32::INFINITY,
+            accepted_s: f32::NEG_INFINITY,
+            neg_range_m: f32::INFINITY,
+            class_range_m: f32::INFINITY,
+            epoch: 0,
+            pending: Moments::default(),
+            pending_scan: 0,
+            last_cloud: Moments::default(),
+            hits: 0,
+            last_scan: 0,
+            stamp_s: 0,
+            headroom: false,
+            far_wiped: false,
+            driven: false,
+            driven_z: 0.0,
+            class: Class::default(),
+        }
+    }
+}
+
+impl CellData {
+    /// Both epochs' evidence together.
+    #[inline]
+    pub(super) fn evidence(&self) -> Moments {
+        self.cur.merged(&self.prev)
+    }
+
+    /// The cell's ground: its lowest return when it has evidence enough, else where the robot
+    /// drove over it, else infinity (unknown).
+    #[inline]
+    pub(super) fn ground(&self, min_n: u32) -> f32 {
+        let e = self.evidence();
+        if e.n >= min_n {
+            e.zmin
+        } else if self.driven {
+            self.driven_z
+        } else {
+            f32::INFINITY
+        }
+    }
+
+    /// Whether the robot's proof that it drove here still holds: it does unless the current
+    /// evidence shows something standing on the driven ground (a car parked, a tree fallen on
+    /// a taught route since), which only observation can judge.
+    #[inline]
+    pub(super) fn driven_free(&self, stand_m: f32) -> bool {
+        self.driven && {
+            let ev = self.evidence();
+            ev.n == 0 || ev.zmax <= self.driven_z + stand_m
+        }
+    }
+}

@@ -1,0 +1,328 @@
+//! Evidence (docs/algorithms.md §4.1-4.3 and §4.5: the source's steps 1-3 and 6, with the project's
+//! additions): a sweep's points through the height and isolated-point filters, binned under each
+//! cell's ceiling `h_max2`, split into ground and possible stray points, and merged into the cells'
+//! two evidence epochs; the robot's footprint as evidence of drivable ground.
+
+use super::cell_data::Moments;
+use super::fast_hash::FastMap;
+use super::{norm2, Evidence, Mapper, RobotPose, UpdateReport};
+use crate::filters;
+
+/// Points this far above their cell's lowest return in the sweep go through the isolated-point
+/// filter; lower ones are ground and cannot raise an obstacle on their own, metres.
+const SUSPECT_ABOVE_M: f32 = 0.04;
+
+impl Mapper {
+    /// Steps 1-2: drops the points above the climb cone or out of range around the robot, then
+    /// isolated points among those standing above their cell's lowest return this sweep.
+    pub(super) fn filter_points(
+        &mut self,
+        pts: &mut Vec<[f32; 3]>,
+        robot: &RobotPose,
+        rep: &mut UpdateReport,
+    ) {
+        rep.dropped_height = filters::height_filter(
+            pts,
+            [robot.x_m, robot.y_m, robot.z_m],
+            self.cfg.h_r_m,
+            self.cfg.phi_max_deg.to_radians(),
+            self.cfg.max_range_m,
+        );
+        // Only points above their cell's lowest return this sweep are worth testing.
+        let li: Vec<Option<usize>> = pts
+            .iter()
+            .map(|p| {
+                let (cx, cy) = self.cell_of(f64::from(p[0]), f64::from(p[1]));
+                self.win.local(cx, cy)
+            })
+            .collect();
+        for (p, l) in pts.iter().zip(&li) {
+            if let Some(i) = *l {
+                if self.win.zmin[i] == f32::INFINITY {
+                    self.win.touched.push(i);
+                }
+                self.win.zmin[i] = self.win.zmin[i].min(p[2]);
+            }
+        }
+        let test: Vec<bool> = pts
+            .iter()
+            .zip(&li)
+            .map(|(p, l)| l.is_none_or(|i| p[2] > self.win.zmin[i] + SUSPECT_ABOVE_M))
+            .collect();
+        rep.dropped_isolated =
+            filters::isolated_point_filter_where(pts, &self.cfg.isolated_pairs, &test);
+        for &i in &self.win.touched {
+            self.win.zmin[i] = f32::INFINITY;
+        }
+        self.win.touched.clear();
+    }
+
+    /// Step 3: bins the points into the scratch window under each cell's ceiling, as ground
+    /// (`low`) or, in scan mode, as possible stray points standing more than `stray_height_m`
+    /// above the cell's ground (`high`).
+    pub(super) fn bin_points(&mut self, pts: &[[f32; 3]], kind: Evidence, rep: &mut UpdateReport) {
+        let mut cells_of = Vec::with_capacity(pts.len());
+        for p in pts {
+            let (cx, cy) = self.cell_of(f64::from(p[0]), f64::from(p[1]));
+            let li = self.win.local(cx, cy);
+            cells_of.push(li);
+            if let Some(i) = li {
+                if self.win.zmin[i] == f32::INFINITY {
+                    self.win.touched.push(i);
+                }
+                self.win.zmin[i] = self.win.zmin[i].min(p[2]);
+            }
+        }
+        self.win.touched.sort_unstable();
+        self.compute_ceilings();
+        let stray_on = kind == Evidence::Scan && self.cfg.stray_height_m > 0.0;
+        // The ground reference for stray points: the lowest point in the cell this scan, or the
+        // ground the cell already showed, whichever is lower.
+        let mut ref_z: FastMap<usize, f32> = FastMap::default();
+        if stray_on {
+            for &i in &self.win.touched {
+                let (cx, cy) = self.win.global(i);
+                let mut r = self.win.zmin[i];
+                if let Some(d) = self.data(cx, cy) {
+                    let e = d.evidence().stats();
+                    if e.n >= self.rules.min_points() {
+                        r = r.min(e.mean_m as f32);
+                    }
+                }
+                ref_z.insert(i, r);
+            }
+        }
+        for (p, li) in pts.iter().zip(&cells_of) {
+            let Some(i) = *li else { continue };
+            if p[2] > self.win.ceiling[i] {
+                rep.dropped_ceiling += 1;
+                continue;
+            }
+            let high = stray_on
+                && ref_z
+                    .get(&i)
+                    .is_some_and(|r| p[2] > r + self.cfg.stray_height_m as f32);
+            if high {
+                self.win.high[i].add(f64::from(p[2]));
+            } else {
+                self.win.low[i].add(f64::from(p[2]));
+            }
+        }
+    }
+
+    /// The ceiling `h_max2` of every touched cell: the lowest ground within
+    /// `ceiling_radius_cells`, from this sweep or (where this sweep's rings left a gap) from what
+    /// the cells showed before, plus `h_r` and the climb allowance to that cell. Without the stored
+    /// ground a tree canopy between two rings would set its own ceiling and come in as an obstacle.
+    fn compute_ceilings(&mut self) {
+        let r = i64::from(self.cfg.ceiling_radius_cells);
+        let tan_phi = self.cfg.phi_max_deg.to_radians().tan() as f32;
+        let l = self.cfg.grid_size_m as f32;
+        let h_r = self.cfg.h_r_m as f32;
+        let side = self.win.side as i64;
+        let mut looked_up: Vec<usize> = Vec::new();
+        // The climb allowance per offset, once.
+        let span = (2 * r + 1) as usize;
+        let cone: Vec<f32> = (0..span * span)
+            .map(|k| {
+                let (dx, dy) = ((k % span) as i64 - r, (k / span) as i64 - r);
+                tan_phi * l * ((dx * dx + dy * dy) as f32).sqrt()
+            })
+            .collect();
+        for k in 0..self.win.touched.len() {
+            let i = self.win.touched[k];
+            let (x, y) = ((i as i64) % side, (i as i64) / side);
+            let mut best = f32::INFINITY;
+            for dy in -r..=r {
+                let yy = y + dy;
+                if yy < 0 || yy >= side {
+                    continue;
+                }
+                let row = ((dy + r) as usize) * span;
+                for dx in -r..=r {
+                    let xx = x + dx;
+                    if xx < 0 || xx >= side {
+                        continue;
+                    }
+                    let j = (yy * side + xx) as usize;
+                    let mut sg = self.win.stored_ground[j];
+                    if sg.is_nan() {
+                        let (cx, cy) = self.win.global(j);
+                        sg = self.ground(cx, cy);
+                        self.win.stored_ground[j] = sg;
+                        looked_up.push(j);
+                    }
+                    let z = self.win.zmin[j].min(sg);
+                    best = best.min(z + cone[row + (dx + r) as usize]);
+                }
+            }
+            self.win.ceiling[i] = best + h_r;
+        }
+        for j in looked_up {
+            self.win.stored_ground[j] = f32::NAN;
+        }
+    }
+
+    /// Merges the binned sweep into the cells' evidence and pushes the cells it changed onto
+    /// `dirty`. `beams`: the sweep came with its origin (free space was marched); without, a
+    /// cell's points are taken as having headroom.
+    pub(super) fn merge_evidence(
+        &mut self,
+        robot: &RobotPose,
+        t_s: f64,
+        kind: Evidence,
+        beams: bool,
+        dirty: &mut Vec<(i64, i64)>,
+        rep: &mut UpdateReport,
+    ) {
+        let epoch = (t_s / self.cfg.evidence_epoch_s).floor() as i64;
+        let stamp = stamp_of(t_s);
+        let scan = self.scan_id;
+        let touched = std::mem::take(&mut self.win.touched);
+        dirty.reserve(touched.len());
+        for &i in &touched {
+            let (low, high) = (self.win.low[i], self.win.high[i]);
+            if low.n == 0 && high.n == 0 {
+                continue;
+            }
+            let (cx, cy) = self.win.global(i);
+            let (ccx, ccy) = self.center_m(cx, cy);
+            let range_m = norm2(ccx - robot.x_m, ccy - robot.y_m) as f32;
+            let far_factor = self.cfg.far_evidence_factor as f32;
+            let stale_s = self.cfg.evidence_stale_s as f32;
+            let grows = self.cfg.max_step_m as f32;
+            let d = self.data_mut(cx, cy);
+            // A cell seen well from close by keeps that view against much poorer ones from far
+            // away (the moving vantage would otherwise let a sparse far glimpse replace a curb
+            // seen at 3 m). Changes are still caught: things that went by free space, things
+            // that came by the far view showing points higher than the cell held, anything once
+            // the close view is `evidence_stale_s` old.
+            let best = d.cur_range_m.min(d.prev_range_m);
+            // Unless the far view shows something new: standing up above what the cell held, or a
+            // surface lower than it (a cover gone from a hole).
+            let incoming = low.merged(&high);
+            let held = d.evidence();
+            let news = incoming.zmax > held.zmax + grows || incoming.zmin < held.zmin - grows;
+            let far = kind == Evidence::Scan
+                && d.cur.n > 0
+                && range_m > far_factor * best + 1.0
+                && !news
+                && (t_s as f32) - d.accepted_s < stale_s;
+            if far {
+                rep.far_skipped += 1;
+                continue;
+            }
+            d.accepted_s = t_s as f32;
+            let changed = match kind {
+                Evidence::MapCloud => {
+                    let m = low.merged(&high);
+                    if m == d.last_cloud {
+                        false
+                    } else {
+                        d.last_cloud = m;
+                        d.cur = m;
+                        d.cur_range_m = range_m;
+                        d.prev = Moments::default();
+                        d.prev_range_m = f32::INFINITY;
+                        true
+                    }
+                }
+                Evidence::Scan => {
+                    let mut add = low;
+                    if high.n > 0 {
+                        if d.pending.n > 0 && d.pending_scan != scan {
+                            // Seen again in a later scan: not a stray point.
+                            add = add.merged(&d.pending).merged(&high);
+                            d.pending = Moments::default();
+                        } else {
+                            d.pending = high;
+                            d.pending_scan = scan;
+                            rep.held_stray += high.n as usize;
+                        }
+                    } else {
+                        d.pending = Moments::default();
+                    }
+                    if add.n > 0 {
+                        if epoch > d.epoch || d.cur.n == 0 {
+                            d.prev = d.cur;
+                            d.prev_range_m = d.cur_range_m;
+                            d.cur = Moments::default();
+                            d.cur_range_m = f32::INFINITY;
+                            d.epoch = epoch;
+                        }
+                        d.cur = d.cur.merged(&add);
+                        d.cur_range_m = d.cur_range_m.min(range_m);
+                    }
+                    add.n > 0
+                }
+            };
+            if !beams {
+                // No beams to judge by: a map cloud's cells are taken as they come.
+                d.headroom = true;
+            }
+            if d.last_scan != scan {
+                d.last_scan = scan;
+                d.hits = d.hits.saturating_add(1);
+            }
+            d.stamp_s = stamp;
+            if changed {
+                self.refresh_ground(cx, cy);
+                dirty.push((cx, cy));
+            }
+        }
+        self.win.touched = touched;
+    }
+
+    /// Step 6a, proprioception: the footprint is traversable ground at the robot's height. Cells
+    /// newly driven (or driven at another height) are pushed onto `dirty`.
+    pub(super) fn drive_footprint(
+        &mut self,
+        robot: &RobotPose,
+        t_s: f64,
+        dirty: &mut Vec<(i64, i64)>,
+    ) {
+        let stamp = stamp_of(t_s);
+        for (cx, cy) in self.footprint_cells(robot) {
+            let d = self.data_mut(cx, cy);
+            if !d.driven || (d.driven_z - robot.z_m as f32).abs() > 0.01 {
+                d.driven = true;
+                d.driven_z = robot.z_m as f32;
+                d.stamp_s = stamp;
+                self.refresh_ground(cx, cy);
+                dirty.push((cx, cy));
+            }
+        }
+    }
+
+    /// The cells whose centres lie under the robot's footprint rectangle.
+    fn footprint_cells(&self, robot: &RobotPose) -> Vec<(i64, i64)> {
+        let (hl, hw) = (
+            self.cfg.footprint_length_m / 2.0,
+            self.cfg.footprint_width_m / 2.0,
+        );
+        if hl <= 0.0 || hw <= 0.0 {
+            return Vec::new();
+        }
+        let (c, s) = (robot.yaw_rad.cos(), robot.yaw_rad.sin());
+        let rad = hl.hypot(hw);
+        let (x0, y0) = self.lattice.cell_of(robot.x_m - rad, robot.y_m - rad);
+        let (x1, y1) = self.lattice.cell_of(robot.x_m + rad, robot.y_m + rad);
+        let mut out = Vec::new();
+        for cy in y0..=y1 {
+            for cx in x0..=x1 {
+                let (px, py) = self.center_m(cx, cy);
+                let (dx, dy) = (px - robot.x_m, py - robot.y_m);
+                let (u, v) = (c * dx + s * dy, -s * dx + c * dy);
+                if u.abs() <= hl && v.abs() <= hw {
+                    out.push((cx, cy));
+                }
+            }
+        }
+        out
+    }
+}
+
+/// A cell's stamp for an update at `t_s`: whole seconds, clamped into `u32`.
+fn stamp_of(t_s: f64) -> u32 {
+    t_s.max(0.0).min(f64::from(u32::MAX)) as u32
+}

@@ -1,0 +1,85 @@
+//! Frame corrections: when GNSS or gravity moves the map frame under the robot, the stored
+//! heights around it move with it (docs/algorithms.md §4.13), so the correction draws no false
+//! steps between old and new sweeps.
+
+use super::Mapper;
+use nalgebra::Isometry3;
+
+impl Mapper {
+    /// The map frame moved under the robot by `delta` (a GNSS or gravity correction of the
+    /// frame: new map point = `delta` * old). Stored heights follow it, so the map stays what a
+    /// map kept in the SLAM frame and shown through the current anchor would be: left alone,
+    /// a correction of the frame's tilt or height sets new scans of the same ground off
+    /// against the stored heights as false steps. Cells within `radius_m` of the robot follow
+    /// fully and the last quarter of the radius tapers to nothing, so no ring of cells is left
+    /// as a step against its neighbours (a hard edge at 30 m, or following only the cells seen
+    /// in the last 20 s, made 3-7 % of `slopes` false obstacles with the robot's own poses).
+    /// Horizontal moves are ignored (a few centimetres, within a cell). Returns the cells moved.
+    pub fn follow_frame(&mut self, delta: &Isometry3<f64>, radius_m: f64) -> usize {
+        let Some(robot) = self.robot else { return 0 };
+        let full_m = 0.75 * radius_m;
+        let taper_m = (radius_m - full_m).max(1e-9);
+        let dz_at = |x: f64, y: f64, z: f64| (delta * nalgebra::Point3::new(x, y, z)).z - z;
+        let corners = [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)];
+        let worst = corners
+            .iter()
+            .map(|(sx, sy)| {
+                dz_at(
+                    robot.x_m + sx * radius_m,
+                    robot.y_m + sy * radius_m,
+                    robot.z_m,
+                )
+                .abs()
+            })
+            .fold(0.0, f64::max);
+        // Nothing to do for a purely horizontal correction (or a non-finite one).
+        if !worst.is_finite() || worst <= 1e-5 {
+            return 0;
+        }
+        let n = self.lattice.tile_cells as i64;
+        let l = self.cfg.grid_size_m;
+        let r2 = radius_m * radius_m;
+        let min_n = self.rules.min_points();
+        let mut moved = 0;
+        for slot in &mut self.slots {
+            let (x0, y0) = (i64::from(slot.index.tx) * n, i64::from(slot.index.ty) * n);
+            // Skip tiles wholly outside the radius.
+            let tile_m = n as f64 * l;
+            let (tx, ty) = (x0 as f64 * l, y0 as f64 * l);
+            let nx = robot.x_m.clamp(tx, tx + tile_m) - robot.x_m;
+            let ny = robot.y_m.clamp(ty, ty + tile_m) - robot.y_m;
+            if nx * nx + ny * ny > r2 {
+                continue;
+            }
+            for (i, d) in slot.data.iter_mut().enumerate() {
+                let (c, r) = ((i as i64) % n, (i as i64) / n);
+                let x = (x0 + c) as f64 * l + 0.5 * l;
+                let y = (y0 + r) as f64 * l + 0.5 * l;
+                let (ex, ey) = (x - robot.x_m, y - robot.y_m);
+                let e2 = ex * ex + ey * ey;
+                if e2 > r2 || (d.cur.n == 0 && d.prev.n == 0 && !d.driven) {
+                    continue;
+                }
+                let weight = ((radius_m - e2.sqrt()) / taper_m).clamp(0.0, 1.0);
+                let z = if d.cur.n > 0 {
+                    d.cur.stats().mean_m
+                } else {
+                    robot.z_m
+                };
+                let dz = weight * dz_at(x, y, z);
+                d.cur = d.cur.shifted(dz);
+                d.prev = d.prev.shifted(dz);
+                d.pending = d.pending.shifted(dz);
+                if d.driven {
+                    d.driven_z += dz as f32;
+                }
+                slot.ground[i] = d.ground(min_n);
+                moved += 1;
+            }
+        }
+        if let Some(r) = self.robot.as_mut() {
+            r.z_m += dz_at(r.x_m, r.y_m, r.z_m);
+        }
+        moved
+    }
+}
