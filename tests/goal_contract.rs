@@ -87,6 +87,7 @@ fn swapped_and_null_island_goals_are_refused_at_the_api_the_cli_and_the_robot() 
     // The robot: a peer that skips every check puts the swapped goal on the robot's key.
     let observer = Observer::connect(&station.ports.endpoint());
     let rid = RobotId::new("r1").unwrap();
+    let stamper = common::command::CommandStamper::new(0x901);
     for (goal_id, lat, lon) in [(901, LON, LAT), (902, 0.0, 0.0)] {
         let cmd = GoalCmd {
             goal_id,
@@ -97,7 +98,14 @@ fn swapped_and_null_island_goals_are_refused_at_the_api_the_cli_and_the_robot() 
             },
             tolerance_m: 0.0,
         };
-        observer.put(&keys::key(&rid, Topic::CmdGoal), msg::encode(&cmd));
+        let now_ms = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap()
+            .as_millis() as u64;
+        observer.put(
+            &keys::key(&rid, Topic::CmdGoal),
+            msg::encode_cmd(stamper.next(now_ms), &cmd),
+        );
     }
     let mut last = Value::Null;
     let counted = wait_for(Duration::from_secs(10), || {

@@ -86,17 +86,18 @@ pub struct Station {
 impl Station {
     /// Starts the station and waits until it answers HTTP.
     pub fn start(ports: Ports, db: &Path) -> Station {
+        Self::start_with(ports, db, &["--zenoh-listen".into(), ports.endpoint()])
+    }
+
+    /// Starts the station with these Zenoh arguments (e.g. `--pki DIR --zenoh-listen tls/...`)
+    /// and waits until it answers HTTP.
+    pub fn start_with(ports: Ports, db: &Path, zenoh_args: &[String]) -> Station {
         let log = db.with_extension(format!("{}.log", ports.http));
         let err = std::fs::File::create(&log).expect("station log");
         let mut p = KillOnDrop::spawn(
             Command::new(bin("operator-station"))
-                .args([
-                    "serve",
-                    "--port",
-                    &ports.http.to_string(),
-                    "--zenoh-listen",
-                    &ports.endpoint(),
-                ])
+                .args(["serve", "--port", &ports.http.to_string()])
+                .args(zenoh_args)
                 .arg("--db")
                 .arg(db)
                 .env("RUST_LOG", "info,zenoh=warn")
@@ -163,6 +164,19 @@ impl Robot {
         seed: u64,
         dir: &Path,
     ) -> Robot {
+        Self::start_with(id, scenario, endpoint, start, seed, dir, &[])
+    }
+
+    /// [`Robot::start`] with more arguments (e.g. `--pki DIR --listen tls/...`).
+    pub fn start_with(
+        id: &str,
+        scenario: &Path,
+        endpoint: &str,
+        start: &str,
+        seed: u64,
+        dir: &Path,
+        extra: &[String],
+    ) -> Robot {
         let log = dir.join(format!("{id}.log"));
         let err = std::fs::File::create(&log).expect("robot log");
         let p = KillOnDrop::spawn(
@@ -180,6 +194,7 @@ impl Robot {
                     &seed.to_string(),
                 ])
                 .arg(format!("--start={start}"))
+                .args(extra)
                 .env("RUST_LOG", "info,zenoh=warn")
                 .env("NO_COLOR", "1")
                 .stdin(Stdio::null())

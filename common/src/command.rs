@@ -10,8 +10,15 @@
 //! longitude were swapped, a map goal far outside anything mapped) take a [`RobotContext`]; a
 //! sender that does not know the robot's position passes [`RobotContext::default`] and those
 //! checks are left to the robot, which always knows.
+//!
+//! Every command travels with a [`CmdHeader`] (sender, sequence, time): the sender stamps it with
+//! a [`CommandStamper`], the robot checks it with a [`ReplayGuard`] before anything else, so a
+//! command captured and sent again later is refused even when it comes over an authorised link.
 
-use crate::msg::{DriveCmd, GoalCmd, GoalTarget, RouteCmd, SpeedCmd, ZoneKind, ZoneSet};
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use crate::msg::{CmdHeader, DriveCmd, GoalCmd, GoalTarget, RouteCmd, SpeedCmd, ZoneKind, ZoneSet};
 use serde::{Deserialize, Serialize};
 
 /// Why a command was refused: stable codes, never renamed (API clients and tests match on them).
@@ -371,6 +378,133 @@ pub fn check_route(r: &RouteCmd) -> Result<(), Refusal> {
     }
 }
 
+/// Stamps a sender's commands: one random sender id, a counter that only goes up.
+#[derive(Debug)]
+pub struct CommandStamper {
+    sender: u64,
+    seq: AtomicU64,
+}
+
+impl CommandStamper {
+    /// A stamper for the sender `sender` (random per process, e.g. from the Zenoh session id).
+    pub fn new(sender: u64) -> Self {
+        Self {
+            sender,
+            seq: AtomicU64::new(0),
+        }
+    }
+
+    /// The header of the next command, sent at `now_unix_ms`.
+    pub fn next(&self, now_unix_ms: u64) -> CmdHeader {
+        CmdHeader {
+            sender: self.sender,
+            seq: self.seq.fetch_add(1, Ordering::Relaxed) + 1,
+            t_unix_ms: now_unix_ms,
+        }
+    }
+}
+
+/// How fresh a command must be when it arrives, against the robot's clock.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ReplayWindow {
+    /// Older commands are refused, milliseconds. Bounds how long the robot must remember a
+    /// sender, and how long a robot restarted after a capture is exposed to its replay.
+    pub max_age_ms: u64,
+    /// Commands stamped further ahead of the robot's clock are refused, milliseconds (clocks of
+    /// station and robot may differ by this much; more means a forged or pre-made command).
+    pub max_ahead_ms: u64,
+}
+
+impl Default for ReplayWindow {
+    fn default() -> Self {
+        Self {
+            max_age_ms: 30_000,
+            max_ahead_ms: 5_000,
+        }
+    }
+}
+
+/// Most senders remembered at once; beyond it the one heard from longest ago is forgotten.
+const MAX_SENDERS: usize = 1024;
+
+/// The robot's memory of who sent what: refuses a command whose sequence number its sender has
+/// already used, or whose time is outside the [`ReplayWindow`]. Pure: the caller passes the clock.
+#[derive(Clone, Debug, Default)]
+pub struct ReplayGuard {
+    window: ReplayWindow,
+    /// Per sender: last accepted sequence number and when it arrived (robot clock, ms).
+    senders: BTreeMap<u64, (u64, u64)>,
+}
+
+impl ReplayGuard {
+    /// A guard with `window`.
+    pub fn new(window: ReplayWindow) -> Self {
+        Self {
+            window,
+            senders: BTreeMap::new(),
+        }
+    }
+
+    /// Accepts (and remembers) `h` arriving at `now_unix_ms`, or refuses it with
+    /// [`RefusalCode::Replayed`]. `kind` names the command in the refusal (`goal`, `drive` ...).
+    pub fn check(&mut self, kind: &str, h: &CmdHeader, now_unix_ms: u64) -> Result<(), Refusal> {
+        let w = self.window;
+        if h.t_unix_ms.saturating_add(w.max_age_ms) < now_unix_ms {
+            return refuse(
+                RefusalCode::Replayed,
+                format!(
+                    "{kind}: sent {:.1} s ago, more than the {:.0} s a command may take (replayed?)",
+                    (now_unix_ms - h.t_unix_ms) as f64 / 1000.0,
+                    w.max_age_ms as f64 / 1000.0
+                ),
+            );
+        }
+        if h.t_unix_ms > now_unix_ms.saturating_add(w.max_ahead_ms) {
+            return refuse(
+                RefusalCode::Replayed,
+                format!(
+                    "{kind}: stamped {:.1} s ahead of the robot's clock (more than {:.0} s: clocks apart, or forged)",
+                    (h.t_unix_ms - now_unix_ms) as f64 / 1000.0,
+                    w.max_ahead_ms as f64 / 1000.0
+                ),
+            );
+        }
+        if let Some(&(last, _)) = self.senders.get(&h.sender) {
+            if h.seq <= last {
+                return refuse(
+                    RefusalCode::Replayed,
+                    format!(
+                        "{kind}: sequence {} of sender {:016x} already used (last {last}): replayed",
+                        h.seq, h.sender
+                    ),
+                );
+            }
+        }
+        // A sender silent for longer than a command may be old cannot be replayed any more (its
+        // commands would be refused by time), so it can be forgotten.
+        let horizon = w.max_age_ms.saturating_add(w.max_ahead_ms);
+        self.senders
+            .retain(|_, &mut (_, seen)| seen.saturating_add(horizon) >= now_unix_ms);
+        if self.senders.len() >= MAX_SENDERS && !self.senders.contains_key(&h.sender) {
+            if let Some(oldest) = self
+                .senders
+                .iter()
+                .min_by_key(|(_, &(_, seen))| seen)
+                .map(|(&k, _)| k)
+            {
+                self.senders.remove(&oldest);
+            }
+        }
+        self.senders.insert(h.sender, (h.seq, now_unix_ms));
+        Ok(())
+    }
+
+    /// Senders remembered now.
+    pub fn senders(&self) -> usize {
+        self.senders.len()
+    }
+}
+
 /// Checks a goal, in the same map frame as `zones`, against the keep-out zones: a goal inside
 /// one is refused with the zone's name (the robot would never be allowed to reach it).
 pub fn check_goal_zones(goal_m: (f64, f64), zones: &[crate::msg::Zone]) -> Result<(), Refusal> {
@@ -580,6 +714,58 @@ mod tests {
         );
         let r = Refusal::new(RefusalCode::NoDatum, "goal: no datum");
         assert_eq!(r.to_string(), "goal: no datum [no_datum]");
+    }
+
+    #[test]
+    fn replays_are_refused_fresh_commands_pass() {
+        let t0 = 1_790_000_000_000;
+        let stamper = CommandStamper::new(42);
+        let mut g = ReplayGuard::new(ReplayWindow::default());
+        let a = stamper.next(t0);
+        let b = stamper.next(t0 + 10);
+        assert!(g.check("goal", &a, t0 + 5).is_ok());
+        // The same command again, from the same or any link: refused.
+        let e = g.check("goal", &a, t0 + 6).unwrap_err();
+        assert_eq!(e.code, RefusalCode::Replayed);
+        assert!(e.message.contains("already used"), "{e}");
+        assert!(g.check("goal", &b, t0 + 12).is_ok());
+        // An older one after a newer one: refused too.
+        assert!(g.check("goal", &a, t0 + 13).is_err());
+        // Another sender counts on its own.
+        let other = CommandStamper::new(7).next(t0 + 14);
+        assert!(g.check("stop", &other, t0 + 15).is_ok());
+        // Captured and sent a minute later by a sender the robot has forgotten: refused by time.
+        let mut fresh = ReplayGuard::default();
+        let e = fresh.check("goal", &a, t0 + 60_000).unwrap_err();
+        assert!(e.message.contains("ago"), "{e}");
+        // Stamped far in the future (a pre-made command): refused.
+        let e = fresh
+            .check("goal", &stamper.next(t0 + 60_000), t0)
+            .unwrap_err();
+        assert!(e.message.contains("ahead"), "{e}");
+    }
+
+    #[test]
+    fn replay_guard_forgets_silent_senders_and_stays_bounded() {
+        let t0 = 1_790_000_000_000;
+        let mut g = ReplayGuard::default();
+        for s in 0..(MAX_SENDERS as u64 + 10) {
+            let h = CmdHeader {
+                sender: s,
+                seq: 1,
+                t_unix_ms: t0,
+            };
+            assert!(g.check("stop", &h, t0).is_ok());
+        }
+        assert_eq!(g.senders(), MAX_SENDERS);
+        let later = t0 + 40_000;
+        let h = CmdHeader {
+            sender: 1 << 40,
+            seq: 1,
+            t_unix_ms: later,
+        };
+        assert!(g.check("stop", &h, later).is_ok());
+        assert_eq!(g.senders(), 1, "silent senders forgotten");
     }
 
     #[test]

@@ -8,6 +8,8 @@
 //! - [`geom`]: small SE(2)/SE(3) helpers over nalgebra.
 //! - [`zone`]: polygon geometry of keep-out and slow zones (inside, distance, checks).
 //! - [`robot`]: the robot profile (body, limits, sensor mounts) that agent, simulator and station read.
+//! - [`security`]: identities, the access rules on the key space, TLS settings, the PKI folder layout,
+//!   and which endpoints are loopback.
 #![deny(missing_docs)]
 
 pub mod command;
@@ -17,4 +19,5 @@ pub mod grid;
 pub mod keys;
 pub mod msg;
 pub mod robot;
+pub mod security;
 pub mod zone;

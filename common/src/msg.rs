@@ -11,7 +11,11 @@
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 
 /// Version of every message layout in this module. Bump on any incompatible change.
-pub const SCHEMA_VERSION: u16 = 2;
+///
+/// 2: zones (keep-out and slow) travel to the robot as a [`ZoneSet`].
+/// 3: commands travel in a [`Cmd`] envelope (sender, sequence, time) so a replay is refused;
+/// [`Status::commands_replayed`].
+pub const SCHEMA_VERSION: u16 = 3;
 
 /// Why a payload could not be decoded.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -43,6 +47,16 @@ pub fn encode<T: Serialize>(msg: &T) -> Vec<u8> {
     // messages do not use; the round-trip tests cover every message.
     out.extend(postcard::to_allocvec(msg).expect("terranav messages always encode"));
     out
+}
+
+/// Encodes a command in its envelope (what goes on `terranav/<robot>/cmd/*`).
+pub fn encode_cmd<T: Serialize>(header: CmdHeader, cmd: &T) -> Vec<u8> {
+    encode(&Cmd { header, cmd })
+}
+
+/// Decodes a command envelope from `terranav/<robot>/cmd/*`.
+pub fn decode_cmd<T: DeserializeOwned>(bytes: &[u8]) -> Result<(CmdHeader, T), DecodeError> {
+    decode::<Cmd<T>>(bytes).map(|c| (c.header, c.cmd))
 }
 
 /// Decodes a message, checking the schema version and that nothing is left over.
@@ -280,6 +294,9 @@ pub struct Status {
     pub last_error: Option<String>,
     /// Commands refused since start.
     pub commands_refused: u32,
+    /// Of those, commands refused as replays (a sequence number already seen, or sent too long
+    /// ago / too far ahead of the robot's clock) since start.
+    pub commands_replayed: u32,
     /// Payloads that failed to decode since start.
     pub decode_errors: u32,
     /// Collisions (simulator truth) since start.
@@ -288,6 +305,27 @@ pub struct Status {
     pub scan_hz: f32,
     /// Plans per second.
     pub plan_hz: f32,
+}
+
+/// What every command carries besides its content, so that a command captured and sent again
+/// later is refused (`common::command::ReplayGuard`), whatever link it comes over.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CmdHeader {
+    /// Random id of the sending process (a station, a CLI call): each sender counts on its own.
+    pub sender: u64,
+    /// The sender's command counter: +1 per command, never repeated.
+    pub seq: u64,
+    /// When it was sent, Unix milliseconds, on the sender's clock.
+    pub t_unix_ms: u64,
+}
+
+/// `terranav/<robot>/cmd/*`: a command with its [`CmdHeader`] ([`encode_cmd`], [`decode_cmd`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Cmd<T> {
+    /// Sender, sequence, time.
+    pub header: CmdHeader,
+    /// The command itself ([`GoalCmd`], [`RouteCmd`], [`DriveCmd`], [`StopCmd`], [`SpeedCmd`]).
+    pub cmd: T,
 }
 
 /// Where a goal is.
@@ -553,6 +591,27 @@ mod tests {
     }
 
     #[test]
+    fn commands_travel_in_their_envelope() {
+        let h = CmdHeader {
+            sender: 0xfeed,
+            seq: 7,
+            t_unix_ms: 1_790_000_000_000,
+        };
+        let b = encode_cmd(h, &SpeedCmd { limit_mps: 0.4 });
+        assert_eq!(
+            decode_cmd::<SpeedCmd>(&b).unwrap(),
+            (h, SpeedCmd { limit_mps: 0.4 })
+        );
+        // A bare command (schema 1 style, no header) is not a command any more.
+        assert!(decode_cmd::<SpeedCmd>(&encode(&SpeedCmd { limit_mps: 0.4 })).is_err());
+        let s = Status {
+            commands_replayed: 3,
+            ..Status::default()
+        };
+        assert_eq!(decode::<Status>(&encode(&s)).unwrap().commands_replayed, 3);
+    }
+
+    #[test]
     fn wrong_schema_and_garbage_are_typed_errors() {
         let mut b = encode(&StopCmd::default());
         b[0] = 9;
@@ -602,6 +661,8 @@ mod tests {
             let _ = decode::<RouteCmd>(&bytes);
             let _ = decode::<Route>(&bytes);
             let _ = decode::<Path>(&bytes);
+            let _ = decode_cmd::<GoalCmd>(&bytes);
+            let _ = decode_cmd::<DriveCmd>(&bytes);
             let _ = decode::<ZoneSet>(&bytes);
         }
     }

@@ -1,5 +1,7 @@
 //! terranav operator station: tracks robots, merges their tiles into one large map, persists
-//! sessions, tracks, routes and tiles in SQLite, and serves the browser UI and its API.
+//! sessions, tracks, routes and tiles in SQLite, and serves the browser UI and its API. With the
+//! fleet's certificates (`pki`), its links are TLS with mutual authentication under access rules
+//! (`security`).
 #![deny(missing_docs)]
 
 pub mod alerts;
@@ -10,6 +12,8 @@ pub mod export;
 pub mod fleet;
 pub mod merge;
 pub mod missions;
+pub mod pki;
+pub mod security;
 pub mod station;
 pub mod store;
 pub mod zones;

@@ -1,6 +1,9 @@
 //! The station's Zenoh side and its wiring: subscribes to `terranav/**`, tracks liveliness,
 //! resyncs late or reconnecting robots through their queryables, feeds the merge thread and the
-//! store thread, and broadcasts live events for the WebSocket.
+//! store thread, and broadcasts live events for the WebSocket. Every command it sends carries a
+//! header from its [`CommandStamper`]. Its Zenoh session can be re-opened with a new config
+//! ([`Station::reopen`]: new access rules after an issue or revocation) while everything else
+//! runs on.
 
 use std::collections::BTreeMap;
 use std::path::{Path as FsPath, PathBuf};
@@ -8,9 +11,10 @@ use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex, RwLock};
 use std::time::{Duration, Instant};
 
+use common::command::CommandStamper;
 use common::grid::{decode_tile, Lattice};
 use common::keys::{self, RobotId, Topic};
-use common::msg::{self, Datum, Path, Pose, Route, Session, Status};
+use common::msg::{self, CmdHeader, Datum, Path, Pose, Route, Session, Status};
 use serde_json::json;
 use tokio::sync::broadcast;
 use zenoh::query::ConsolidationMode;
@@ -52,6 +56,15 @@ pub fn now_unix_ms() -> u64 {
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_millis() as u64)
         .unwrap_or(0)
+}
+
+/// A sender id for the commands of `session`'s process: the session id is random, so it differs
+/// for every station and every CLI call.
+pub fn sender_id(session: &zenoh::Session) -> u64 {
+    let zid = session.zid().to_le_bytes();
+    let mut b = [0u8; 8];
+    b.copy_from_slice(&zid[..8]);
+    u64::from_le_bytes(b)
 }
 
 /// Builds a Zenoh config: a json5 file or the terranav defaults (peer, multicast scouting off,
@@ -204,8 +217,8 @@ impl Datums {
 
 /// Shared state of a running station.
 pub struct Inner {
-    /// Zenoh session.
-    pub session: zenoh::Session,
+    /// Zenoh session (replaced by [`Station::reopen`]; use [`Inner::session`]).
+    session: RwLock<zenoh::Session>,
     /// Robots.
     pub fleet: Mutex<Fleet>,
     /// Datums.
@@ -224,6 +237,8 @@ pub struct Inner {
     pub goal_seq: AtomicU32,
     /// Next drive sequence number.
     pub drive_seq: AtomicU32,
+    /// Stamps every command this station sends (sender id, sequence, time).
+    pub stamper: CommandStamper,
     reader: Mutex<Option<rusqlite::Connection>>,
     /// Keep-out and slow zones.
     pub zones: Mutex<ZoneBook>,
@@ -241,7 +256,7 @@ pub struct Station {
     pub inner: Arc<Inner>,
     merge: Option<MergeWorker>,
     store: Option<StoreWriter>,
-    _subs: Vec<Box<dyn std::any::Any + Send + Sync>>,
+    subs: Vec<Box<dyn std::any::Any + Send + Sync>>,
 }
 
 fn robot_event(r: &str, online: bool, t: u64) -> String {
@@ -249,6 +264,19 @@ fn robot_event(r: &str, online: bool, t: u64) -> String {
 }
 
 impl Inner {
+    /// The station's Zenoh session now.
+    pub fn session(&self) -> zenoh::Session {
+        self.session
+            .read()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
+    }
+
+    /// The header of a command sent now.
+    pub fn cmd_header(&self) -> CmdHeader {
+        self.stamper.next(now_unix_ms())
+    }
+
     /// Sends a live event to every WebSocket client.
     pub fn emit(&self, s: String) {
         let _ = self.events.send(Arc::from(s));
@@ -564,7 +592,7 @@ impl Inner {
 
     async fn get_all(self: &Arc<Self>, selector: String) -> usize {
         let replies = match self
-            .session
+            .session()
             .get(&selector)
             .consolidation(ConsolidationMode::None)
             .timeout(Duration::from_secs(5))
@@ -629,7 +657,7 @@ impl Inner {
                 };
                 let key = keys::key(&id, Topic::Zones);
                 if let Err(e) = me
-                    .session
+                    .session()
                     .put(&key, msg::encode(&set))
                     .congestion_control(zenoh::qos::CongestionControl::Block)
                     .await
@@ -742,28 +770,35 @@ impl Inner {
     /// Sends what a mission run asks for.
     pub async fn send_run_action(self: &Arc<Self>, robot: &str, act: RunAction) {
         let Ok(id) = RobotId::new(robot) else { return };
+        let h = self.cmd_header();
         let (topic, payload) = match act {
             RunAction::Goal { goal_id, target } => (
                 Topic::CmdGoal,
-                msg::encode(&msg::GoalCmd {
-                    goal_id,
-                    target,
-                    tolerance_m: crate::missions::runner::WAYPOINT_TOLERANCE_M,
-                }),
+                msg::encode_cmd(
+                    h,
+                    &msg::GoalCmd {
+                        goal_id,
+                        target,
+                        tolerance_m: crate::missions::runner::WAYPOINT_TOLERANCE_M,
+                    },
+                ),
             ),
             RunAction::Speed(v) => (
                 Topic::CmdSpeed,
-                msg::encode(&msg::SpeedCmd { limit_mps: v }),
+                msg::encode_cmd(h, &msg::SpeedCmd { limit_mps: v }),
             ),
             RunAction::Stop => (
                 Topic::CmdStop,
-                msg::encode(&msg::StopCmd {
-                    reason: "mission cancelled".into(),
-                }),
+                msg::encode_cmd(
+                    h,
+                    &msg::StopCmd {
+                        reason: "mission cancelled".into(),
+                    },
+                ),
             ),
         };
         if let Err(e) = self
-            .session
+            .session()
             .put(keys::key(&id, topic), payload)
             .congestion_control(zenoh::qos::CongestionControl::Block)
             .await
@@ -867,8 +902,9 @@ impl Station {
         );
         let session = zenoh::open(opts.zenoh).await.map_err(zerr)?;
         let start_seq = (now_unix_ms() / 1000) as u32;
+        let sender = sender_id(&session);
         let inner = Arc::new(Inner {
-            session,
+            session: RwLock::new(session),
             fleet: Mutex::new(Fleet::default()),
             datums: Mutex::new(datums),
             map,
@@ -879,6 +915,7 @@ impl Station {
             merge_tx: merge.sender(),
             goal_seq: AtomicU32::new(start_seq),
             drive_seq: AtomicU32::new(start_seq),
+            stamper: CommandStamper::new(sender),
             reader: Mutex::new(None),
             zones: Mutex::new(ZoneBook {
                 records: zone_rows,
@@ -888,11 +925,89 @@ impl Station {
             runs: Mutex::new(BTreeMap::new()),
             alerts: Mutex::new(Alerts::restore(opts.alerts, alert_rows)),
         });
-        let mut subs: Vec<Box<dyn std::any::Any + Send + Sync>> = Vec::new();
+        let subs = declare_subscribers(&inner).await?;
+        let i5 = inner.clone();
+        let watch_task = tokio::spawn(async move {
+            let mut tick = tokio::time::interval(WATCH_PERIOD);
+            loop {
+                tick.tick().await;
+                i5.watch_once().await;
+            }
+        });
+        let mut subs = subs;
+        subs.push(Box::new(AbortOnDrop(watch_task)));
+        Ok(Station {
+            inner,
+            merge: Some(merge),
+            store: Some(store),
+            subs,
+        })
+    }
+
+    /// Closes the Zenoh session and opens a new one with `zenoh` (new access rules, say), keeping
+    /// fleet, map and store. Every robot's link drops; those still admitted reconnect within a
+    /// second and are resynced as after any cut. Robots are shown offline until their liveliness
+    /// token is seen again.
+    pub async fn reopen(&mut self, zenoh: zenoh::Config) -> Result<(), StationError> {
+        self.subs.clear();
+        // The old session must release its listening port before the new one binds it.
+        let _ = self.inner.session().close().await;
+        let now_ms = now_unix_ms();
+        let gone: Vec<String> = {
+            let mut f = self.inner.fleet.lock().unwrap_or_else(|p| p.into_inner());
+            let ids: Vec<String> = f
+                .robots
+                .iter()
+                .filter(|(_, r)| r.online)
+                .map(|(id, _)| id.clone())
+                .collect();
+            for id in &ids {
+                f.set_online(id, false, now_ms);
+            }
+            ids
+        };
+        for id in gone {
+            self.inner.emit(robot_event(&id, false, now_ms));
+        }
+        let session = zenoh::open(zenoh).await.map_err(zerr)?;
+        *self
+            .inner
+            .session
+            .write()
+            .unwrap_or_else(|p| p.into_inner()) = session;
+        self.subs = declare_subscribers(&self.inner).await?;
+        Ok(())
+    }
+
+    /// Closes Zenoh, then drains the merge and store queues.
+    pub async fn stop(mut self) {
+        self.subs.clear();
+        let _ = self.inner.session().close().await;
+        let merge = self.merge.take();
+        let store = self.store.take();
+        let _ = tokio::task::spawn_blocking(move || {
+            if let Some(m) = merge {
+                m.finish();
+            }
+            if let Some(s) = store {
+                s.finish();
+            }
+        })
+        .await;
+    }
+}
+
+/// The station's subscriptions on its current session: every robot key, liveliness (with
+/// history, so robots already there are seen at once), and the queryable of the zone sets.
+async fn declare_subscribers(
+    inner: &Arc<Inner>,
+) -> Result<Vec<Box<dyn std::any::Any + Send + Sync>>, StationError> {
+    let session = inner.session();
+    let mut subs: Vec<Box<dyn std::any::Any + Send + Sync>> = Vec::new();
+    {
         let i2 = inner.clone();
         let rt = tokio::runtime::Handle::current();
-        let sub = inner
-            .session
+        let sub = session
             .declare_subscriber(keys::all())
             .callback(move |sample| {
                 if sample.kind() != SampleKind::Put {
@@ -906,74 +1021,41 @@ impl Station {
             .await
             .map_err(zerr)?;
         subs.push(Box::new(sub));
-        let i3 = inner.clone();
-        let rt = tokio::runtime::Handle::current();
-        let live = inner
-            .session
-            .liveliness()
-            .declare_subscriber(keys::all_alive())
-            .history(true)
-            .callback(move |sample| {
-                let _g = rt.enter();
-                i3.on_liveliness(sample.key_expr().as_str(), sample.kind() == SampleKind::Put);
-            })
-            .await
-            .map_err(zerr)?;
-        subs.push(Box::new(live));
-        // Robots that start after the zones were drawn ask for them here.
-        let zq = inner
-            .session
-            .declare_queryable(keys::all_zones())
-            .await
-            .map_err(zerr)?;
-        let i4 = inner.clone();
-        let zone_task = tokio::spawn(async move {
-            while let Ok(q) = zq.recv_async().await {
-                let key = q.key_expr().as_str().to_string();
-                let Ok((robot, Topic::Zones)) = keys::parse(&key) else {
-                    continue;
-                };
-                if let Some(set) = i4.zone_set(robot.as_str()) {
-                    if let Err(e) = q.reply(&key, msg::encode(&set)).await {
-                        tracing::warn!("zones reply to {robot}: {e}");
-                    }
+    }
+    let i3 = inner.clone();
+    let rt = tokio::runtime::Handle::current();
+    let live = session
+        .liveliness()
+        .declare_subscriber(keys::all_alive())
+        .history(true)
+        .callback(move |sample| {
+            let _g = rt.enter();
+            i3.on_liveliness(sample.key_expr().as_str(), sample.kind() == SampleKind::Put);
+        })
+        .await
+        .map_err(zerr)?;
+    subs.push(Box::new(live));
+    // Robots that start after the zones were drawn ask for them here.
+    let zq = session
+        .declare_queryable(keys::all_zones())
+        .await
+        .map_err(zerr)?;
+    let i4 = inner.clone();
+    let zone_task = tokio::spawn(async move {
+        while let Ok(q) = zq.recv_async().await {
+            let key = q.key_expr().as_str().to_string();
+            let Ok((robot, Topic::Zones)) = keys::parse(&key) else {
+                continue;
+            };
+            if let Some(set) = i4.zone_set(robot.as_str()) {
+                if let Err(e) = q.reply(&key, msg::encode(&set)).await {
+                    tracing::warn!("zones reply to {robot}: {e}");
                 }
             }
-        });
-        let i5 = inner.clone();
-        let watch_task = tokio::spawn(async move {
-            let mut tick = tokio::time::interval(WATCH_PERIOD);
-            loop {
-                tick.tick().await;
-                i5.watch_once().await;
-            }
-        });
-        subs.push(Box::new(AbortOnDrop(zone_task)));
-        subs.push(Box::new(AbortOnDrop(watch_task)));
-        Ok(Station {
-            inner,
-            merge: Some(merge),
-            store: Some(store),
-            _subs: subs,
-        })
-    }
-
-    /// Closes Zenoh, then drains the merge and store queues.
-    pub async fn stop(mut self) {
-        self._subs.clear();
-        let _ = self.inner.session.close().await;
-        let merge = self.merge.take();
-        let store = self.store.take();
-        let _ = tokio::task::spawn_blocking(move || {
-            if let Some(m) = merge {
-                m.finish();
-            }
-            if let Some(s) = store {
-                s.finish();
-            }
-        })
-        .await;
-    }
+        }
+    });
+    subs.push(Box::new(AbortOnDrop(zone_task)));
+    Ok(subs)
 }
 
 /// A task that ends with its owner.

@@ -1,9 +1,11 @@
 //! axum REST + WebSocket API for the browser UI, exactly as `operator-station/API.md`, and the
-//! UI's static files. Zones, missions, alerts and the basemap have their own modules.
+//! UI's static files, served over TLS by [`tls`] when asked (always off loopback). Zones,
+//! missions, alerts and the basemap have their own modules.
 
 mod alerts;
 mod basemap;
 mod missions;
+pub mod tls;
 mod zones;
 
 use std::path::PathBuf;
@@ -652,9 +654,16 @@ fn known_robot(st: &AppState, robot: &str) -> ApiResult<RobotId> {
     }
 }
 
-async fn put(st: &AppState, robot: &RobotId, topic: Topic, payload: Vec<u8>) -> ApiResult<()> {
+/// Sends `cmd` to `robot` in its envelope (the station's sender id, next sequence, now).
+async fn put<T: serde::Serialize>(
+    st: &AppState,
+    robot: &RobotId,
+    topic: Topic,
+    cmd: &T,
+) -> ApiResult<()> {
+    let payload = msg::encode_cmd(st.inner.cmd_header(), cmd);
     st.inner
-        .session
+        .session()
         .put(keys::key(robot, topic), payload)
         .congestion_control(zenoh::qos::CongestionControl::Block)
         .await
@@ -762,7 +771,7 @@ async fn cmd_goal(
     // (a swapped lat/lon would otherwise leave as "sent" and come back as a refusal later).
     check_goal(&cmd, &CommandLimits::default(), &goal_context(&st, &robot))
         .map_err(ApiError::from)?;
-    put(&st, &id, Topic::CmdGoal, msg::encode(&cmd)).await?;
+    put(&st, &id, Topic::CmdGoal, &cmd).await?;
     let sent = serde_json::to_value(&cmd).map_err(internal)?;
     st.inner.store(StoreOp::Goal {
         robot: robot.clone(),
@@ -788,7 +797,7 @@ async fn cmd_stop(
     let cmd = StopCmd {
         reason: b.reason.unwrap_or_else(|| "operator".into()),
     };
-    put(&st, &id, Topic::CmdStop, msg::encode(&cmd)).await?;
+    put(&st, &id, Topic::CmdStop, &cmd).await?;
     Ok(accepted(serde_json::to_value(&cmd).map_err(internal)?))
 }
 
@@ -816,7 +825,7 @@ async fn cmd_drive(
         omega_rps: b.omega_rps,
         deadman: b.deadman,
     };
-    put(&st, &id, Topic::CmdDrive, msg::encode(&cmd)).await?;
+    put(&st, &id, Topic::CmdDrive, &cmd).await?;
     Ok(accepted(serde_json::to_value(&cmd).map_err(internal)?))
 }
 
@@ -838,7 +847,7 @@ async fn cmd_speed(
     let cmd = SpeedCmd {
         limit_mps: b.limit_mps,
     };
-    put(&st, &id, Topic::CmdSpeed, msg::encode(&cmd)).await?;
+    put(&st, &id, Topic::CmdSpeed, &cmd).await?;
     Ok(accepted(serde_json::to_value(&cmd).map_err(internal)?))
 }
 
@@ -881,7 +890,7 @@ async fn cmd_route(
         "cancel" => RouteCmd::Cancel,
         a => return Err(bad(format!("unknown action {a:?}"))),
     };
-    put(&st, &id, Topic::CmdRoute, msg::encode(&cmd)).await?;
+    put(&st, &id, Topic::CmdRoute, &cmd).await?;
     let sent = match &cmd {
         RouteCmd::Repeat { route, direction } => {
             json!({"Repeat": {"route_id": route.route_id, "direction": direction}})

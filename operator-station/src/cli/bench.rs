@@ -6,6 +6,10 @@
 //! - latency: a real [`Station`] (Zenoh, fleet, store, events) on loopback TCP and a publisher
 //!   session putting poses exactly as the robot bus does; time from `put` to the station's pose
 //!   event (what the WebSocket forwards), against a bare Zenoh subscriber on the same publisher.
+//! - link ([`link`]): pose latency and tile throughput through a station over TLS with mutual
+//!   authentication and access rules, against plain TCP.
+
+pub mod link;
 
 use std::collections::HashMap;
 use std::sync::atomic::AtomicU64;
@@ -39,17 +43,31 @@ pub struct BenchArgs {
     /// Total pose rate, Hz.
     #[arg(long, default_value_t = 200.0)]
     pub rate_hz: f64,
+    /// link: robots (one Zenoh session and certificate each, 10 Hz poses each).
+    #[arg(long, default_value_t = 5)]
+    pub link_robots: usize,
+    /// link: poses timed per round and transport.
+    #[arg(long, default_value_t = 600)]
+    pub link_samples: usize,
+    /// link: tiles sent per round and transport.
+    #[arg(long, default_value_t = 2000)]
+    pub link_tiles: usize,
+    /// link: rounds (each TCP then TLS).
+    #[arg(long, default_value_t = 2)]
+    pub link_rounds: usize,
 }
 
 /// Benchmarks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum BenchWhat {
-    /// Both.
+    /// All three.
     All,
     /// Merge throughput.
     Merge,
     /// Pose latency.
     Latency,
+    /// Pose latency and tile throughput over TLS against plain TCP.
+    Link,
 }
 
 /// Runs the benchmarks, printing a summary to stderr and one JSON line to stdout.
@@ -62,6 +80,12 @@ pub async fn run(a: BenchArgs) -> anyhow::Result<()> {
     }
     if matches!(a.what, BenchWhat::All | BenchWhat::Latency) {
         out.insert("latency".into(), latency_bench(&a).await?);
+    }
+    if matches!(a.what, BenchWhat::All | BenchWhat::Link) {
+        out.insert(
+            "link".into(),
+            link::run(a.link_robots, a.link_samples, a.link_tiles, a.link_rounds).await?,
+        );
     }
     println!("{}", serde_json::Value::Object(out));
     Ok(())

@@ -1,8 +1,11 @@
 //! Command line: `serve`, `demo`, and scripted use (`robots`, `goal`, `stop`, `export`).
 //! `robots`, `goal` and `stop` act directly over Zenoh (no station needed); exports read the
-//! station's database. `bench` measures merge throughput and pose latency.
+//! station's database. `bench` measures merge throughput and pose latency (and both again over
+//! TLS against plain TCP). `pki` makes the fleet's certificates; with `--pki` every Zenoh link is
+//! TLS with mutual authentication, and without it anything off loopback is refused at start.
 
 pub mod bench;
+pub mod pki;
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -17,6 +20,7 @@ use common::msg::{self, GoalCmd, GoalTarget, Session, StopCmd};
 use zenoh::query::ConsolidationMode;
 
 use crate::api::{self, AppState};
+use crate::security::{self, RegisterWatch};
 use crate::station::{self, Station, StationOptions, DEFAULT_LISTEN_ENDPOINT};
 
 /// `operator-station`.
@@ -44,6 +48,11 @@ pub struct ZenohArgs {
     /// Zenoh endpoint to connect to (e.g. a router, or for CLI commands the station).
     #[arg(long)]
     pub connect: Option<String>,
+    /// The fleet's PKI folder (`pki init`): Zenoh over TLS with mutual authentication as the
+    /// station, under the station's access rules; endpoints are then tls/ (default
+    /// tls/127.0.0.1:7447). Without it, endpoints off loopback are refused.
+    #[arg(long, value_name = "DIR")]
+    pub pki: Option<PathBuf>,
 }
 
 /// Subcommands.
@@ -63,6 +72,8 @@ pub enum Cmd {
     Export(ExportArgs),
     /// Benchmarks: merge throughput and pose latency on loopback, with same-run baselines.
     Bench(bench::BenchArgs),
+    /// The fleet's certificates: init (CA and station), issue (a robot), revoke (a robot).
+    Pki(pki::PkiArgs),
 }
 
 /// `serve` options.
@@ -71,9 +82,16 @@ pub struct ServeArgs {
     /// Zenoh options.
     #[command(flatten)]
     pub z: ZenohArgs,
-    /// HTTP listen address (127.0.0.1 by default; anything else requires --token).
+    /// HTTP listen address (127.0.0.1 by default; anything else requires --token and TLS).
     #[arg(long)]
     pub listen: Option<SocketAddr>,
+    /// Serve the API and UI over TLS with this PEM certificate (chain); needs --tls-key. Off
+    /// loopback without it, the fleet's station certificate (--pki) is used.
+    #[arg(long, value_name = "FILE", requires = "tls_key")]
+    pub tls_cert: Option<PathBuf>,
+    /// The private key of --tls-cert (PEM).
+    #[arg(long, value_name = "FILE", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
     /// HTTP port on 127.0.0.1 (when --listen is not given).
     #[arg(long, default_value_t = 8080)]
     pub port: u16,
@@ -155,6 +173,10 @@ pub struct DemoArgs {
     /// Database file (default: a fresh temporary one, removed when the demo ends).
     #[arg(long)]
     pub db: Option<PathBuf>,
+    /// Run it secure: the fleet's PKI folder (created with the robots' certificates when it has
+    /// none), Zenoh over TLS with mutual authentication and access rules, still on loopback.
+    #[arg(long, value_name = "DIR")]
+    pub pki: Option<PathBuf>,
     /// Operator options shared with `serve`.
     #[command(flatten)]
     pub ops: OpsArgs,
@@ -284,6 +306,7 @@ pub fn main() -> anyhow::Result<()> {
             Cmd::Stop(a) => stop(a).await,
             Cmd::Export(a) => export(a),
             Cmd::Bench(a) => bench::run(a).await,
+            Cmd::Pki(a) => pki::run(a),
         }
     })
 }
@@ -304,34 +327,136 @@ pub fn http_addr(
     Ok(addr)
 }
 
-fn zenoh_config(z: &ZenohArgs, listen_default: Option<&str>) -> anyhow::Result<zenoh::Config> {
-    let listen: Vec<String> = match (&z.zenoh_listen, listen_default, &z.zenoh) {
-        (Some(l), _, _) => vec![l.clone()],
-        (None, Some(d), None) => vec![d.to_string()],
-        _ => vec![],
-    };
-    let connect: Vec<String> = z.connect.iter().cloned().collect();
-    Ok(station::zenoh_config(
-        z.zenoh.as_deref(),
-        None,
-        &listen,
-        &connect,
-    )?)
+/// The certificate and key of the HTTP server when it is to speak TLS: `--tls-cert/--tls-key`
+/// when given; off loopback, else the fleet's station certificate (`--pki`); off loopback without
+/// either, refused (the token would cross the network in the clear).
+pub fn http_tls(
+    addr: SocketAddr,
+    cert: Option<&Path>,
+    key: Option<&Path>,
+    pki: Option<&Path>,
+) -> anyhow::Result<Option<(PathBuf, PathBuf)>> {
+    if let (Some(c), Some(k)) = (cert, key) {
+        return Ok(Some((c.to_path_buf(), k.to_path_buf())));
+    }
+    if addr.ip().is_loopback() {
+        return Ok(None);
+    }
+    match pki {
+        Some(dir) => {
+            let s = common::security::FleetDir::new(dir).station();
+            Ok(Some((s.cert, s.key)))
+        }
+        None => bail!(
+            "refusing to serve HTTP on {addr} without TLS: the token and every command would \
+             cross the network in the clear. Give --pki DIR (the fleet's station certificate, \
+             `operator-station pki init --dir DIR --host NAME`) or --tls-cert FILE --tls-key FILE"
+        ),
+    }
 }
 
-/// Runs the station until Ctrl-C.
+/// What a Zenoh session of this process does: the station listens, a CLI call connects.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Role {
+    Station,
+    Client,
+}
+
+/// The Zenoh config of `z` for `role`: default endpoints on loopback (`tls/` with `--pki`), TLS
+/// and access rules with `--pki`, and the refusal of plain endpoints off loopback.
+fn zenoh_config(z: &ZenohArgs, role: Role) -> anyhow::Result<zenoh::Config> {
+    let secure = z.pki.is_some();
+    let default_ep = if secure {
+        DEFAULT_LISTEN_ENDPOINT.replacen("tcp/", "tls/", 1)
+    } else {
+        DEFAULT_LISTEN_ENDPOINT.to_string()
+    };
+    let listen: Vec<String> = match (&z.zenoh_listen, role, &z.zenoh) {
+        (Some(l), _, _) => vec![l.clone()],
+        (None, Role::Station, None) => vec![default_ep.clone()],
+        _ => vec![],
+    };
+    let connect: Vec<String> = match (&z.connect, role, &z.zenoh) {
+        (Some(c), _, _) => vec![c.clone()],
+        (None, Role::Client, None) => vec![default_ep],
+        _ => vec![],
+    };
+    let mut c = station::zenoh_config(z.zenoh.as_deref(), None, &listen, &connect)?;
+    if let Some(dir) = &z.pki {
+        if listen.is_empty() && z.zenoh.is_none() {
+            // A secure call that only connects needs no listener (and a plain loopback one
+            // would be refused).
+            c.insert_json5("listen/endpoints", "[]")
+                .map_err(|e| anyhow::anyhow!("zenoh config: {e}"))?;
+        }
+        security::apply(&mut c, dir, role == Role::Client)?;
+    }
+    security::check_endpoints(&c, secure)?;
+    Ok(c)
+}
+
+/// Runs the station until Ctrl-C. With `--pki` it re-reads the fleet register every second and,
+/// when it changed (a robot issued or revoked), re-opens its Zenoh session with the new rules.
 pub async fn serve(a: ServeArgs) -> anyhow::Result<()> {
     let addr = http_addr(a.listen, a.port, a.token.as_deref())?;
-    let zc = zenoh_config(&a.z, Some(DEFAULT_LISTEN_ENDPOINT))?;
+    let tls = http_tls(
+        addr,
+        a.tls_cert.as_deref(),
+        a.tls_key.as_deref(),
+        a.z.pki.as_deref(),
+    )?;
+    let zc = zenoh_config(&a.z, Role::Station)?;
     let web = a.web.clone().or_else(api::find_web_dir);
-    let running = start_station(zc, &a.db, addr, a.token.clone(), web, &a.ops).await?;
+    let mut running =
+        start_station(zc, &a.db, addr, a.token.clone(), web, tls.as_ref(), &a.ops).await?;
     println!(
-        "operator station: http://{addr}/  (database {})",
+        "operator station: {}://{addr}/  (database {})",
+        if tls.is_some() { "https" } else { "http" },
         a.db.display()
     );
-    tokio::signal::ctrl_c().await.ok();
+    let mut watch = a.z.pki.as_deref().map(RegisterWatch::new);
+    run_until_stopped(&mut running, &a.z, &mut watch, || false).await;
     running.stop().await;
     Ok(())
+}
+
+/// Waits for Ctrl-C (or SIGTERM / SIGHUP), re-opening the station's session when the register
+/// watched by `watch` changes, and calling `tick` twice a second (true: stop).
+async fn run_until_stopped(
+    running: &mut Running,
+    z: &ZenohArgs,
+    watch: &mut Option<RegisterWatch>,
+    mut tick: impl FnMut() -> bool,
+) {
+    let mut interval = tokio::time::interval(Duration::from_millis(500));
+    let stop = stop_signal();
+    tokio::pin!(stop);
+    // A re-open that failed (the port not yet free) is tried again on the next tick.
+    let mut reload = false;
+    loop {
+        tokio::select! {
+            _ = &mut stop => break,
+            _ = interval.tick() => {
+                if tick() {
+                    break;
+                }
+                if let Some(w) = watch.as_mut() {
+                    reload |= w.changed();
+                }
+                if reload {
+                    tracing::info!("fleet register changed: re-opening Zenoh with the new access rules");
+                    let r = match zenoh_config(z, Role::Station) {
+                        Ok(zc) => running.station.reopen(zc).await.map_err(anyhow::Error::from),
+                        Err(e) => Err(e),
+                    };
+                    match r {
+                        Ok(()) => reload = false,
+                        Err(e) => tracing::error!("re-opening Zenoh: {e:#}"),
+                    }
+                }
+            }
+        }
+    }
 }
 
 /// A station with its HTTP server.
@@ -349,20 +474,33 @@ impl Running {
     }
 }
 
-/// Starts the station and its HTTP server.
+/// Starts the station and its HTTP server (HTTPS with `tls`: certificate and key PEM files).
 pub async fn start_station(
     zc: zenoh::Config,
     db: &Path,
     addr: SocketAddr,
     token: Option<String>,
     web: Option<PathBuf>,
+    tls: Option<&(PathBuf, PathBuf)>,
     ops: &OpsArgs,
 ) -> anyhow::Result<Running> {
     let alerts = ops.alerts()?;
     let basemap = ops.basemap()?;
-    let listener = tokio::net::TcpListener::bind(addr)
-        .await
-        .with_context(|| format!("bind HTTP {addr}"))?;
+    enum Http {
+        Plain(tokio::net::TcpListener),
+        Tls(api::tls::TlsListener),
+    }
+    let http = match tls {
+        Some((cert, key)) => {
+            let cfg = api::tls::server_config(cert, key)?;
+            Http::Tls(api::tls::TlsListener::bind(addr, cfg).await?)
+        }
+        None => Http::Plain(
+            tokio::net::TcpListener::bind(addr)
+                .await
+                .with_context(|| format!("bind HTTP {addr}"))?,
+        ),
+    };
     let station = Station::start(StationOptions {
         zenoh: zc,
         db: db.to_path_buf(),
@@ -382,7 +520,11 @@ pub async fn start_station(
         web,
     );
     let server = tokio::spawn(async move {
-        if let Err(e) = axum::serve(listener, app).await {
+        let r = match http {
+            Http::Plain(l) => axum::serve(l, app).await,
+            Http::Tls(l) => axum::serve(l, app).await,
+        };
+        if let Err(e) = r {
             tracing::error!("http server: {e}");
         }
     });
@@ -500,7 +642,7 @@ fn start_robot(
     robot: &str,
     seed: u32,
     start: &str,
-    station_endpoint: &str,
+    (station_endpoint, pki): (&str, Option<&Path>),
     mcap: Option<PathBuf>,
     children: &mut Children,
 ) -> anyhow::Result<()> {
@@ -548,6 +690,11 @@ fn start_robot(
         .with_context(|| format!("the world's first line names no datum: {first}"))?;
     let mut run = Command::new(agent);
     run.args(["run", "--robot", robot, "--connect", station_endpoint]);
+    if let Some(dir) = pki {
+        // The robot's certificate and rules on its link to the station; its "hardware" link
+        // stays plain on loopback.
+        run.arg("--pki").arg(dir);
+    }
     if let Some(path) = &mcap {
         run.arg("--mcap").arg(path);
     }
@@ -566,6 +713,14 @@ fn start_robot(
 pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
     let addr = http_addr(None, a.port, None)?;
     let mut zport = demo_zenoh_port(a.zenoh_port)?;
+    let secure = a.pki.is_some();
+    let scheme = if secure { "tls" } else { "tcp" };
+    let robot_ids: Vec<RobotId> = (1..=a.robots)
+        .map(|i| RobotId::new(format!("husky-{i}")))
+        .collect::<Result<_, _>>()?;
+    if let Some(dir) = &a.pki {
+        crate::pki::ensure_demo_fleet(dir, &robot_ids)?;
+    }
     // The temporary folder (only when no --db is given) goes when the demo ends, however it
     // ends short of SIGKILL.
     let tmp = match &a.db {
@@ -583,18 +738,36 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
             eprintln!("{note}");
         }
     }
-    let zc = |port: u16| station::zenoh_config(None, None, &[format!("tcp/127.0.0.1:{port}")], &[]);
-    let running = match start_station(zc(zport)?, &db, addr, None, web.clone(), &a.ops).await {
+    let z_for = |port: u16| ZenohArgs {
+        zenoh: None,
+        zenoh_listen: Some(format!("{scheme}/127.0.0.1:{port}")),
+        connect: None,
+        pki: a.pki.clone(),
+    };
+    let mut z = z_for(zport);
+    let started = start_station(
+        zenoh_config(&z, Role::Station)?,
+        &db,
+        addr,
+        None,
+        web.clone(),
+        None,
+        &a.ops,
+    )
+    .await;
+    let mut running = match started {
         Ok(r) => r,
         // Another program took 7447 between the check and the bind: any free port will do.
         Err(e) if a.zenoh_port.is_none() && zport == DEFAULT_ZENOH_PORT => {
             tracing::warn!("zenoh on port {zport}: {e:#}; trying a free port");
             zport = demo_zenoh_port(Some(0))?;
-            start_station(zc(zport)?, &db, addr, None, web, &a.ops).await?
+            z = z_for(zport);
+            let zc = zenoh_config(&z, Role::Station)?;
+            start_station(zc, &db, addr, None, web, None, &a.ops).await?
         }
         Err(e) => return Err(e),
     };
-    let endpoint = format!("tcp/127.0.0.1:{zport}");
+    let endpoint = format!("{scheme}/127.0.0.1:{zport}");
     let agent = robot_agent_bin();
     let scenario = if a.scenario.is_file() {
         a.scenario.clone()
@@ -613,17 +786,17 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
     if let Some(dir) = &a.record_mcap {
         std::fs::create_dir_all(dir).with_context(|| format!("--record-mcap {}", dir.display()))?;
     }
-    for i in 1..=a.robots {
-        let robot = format!("husky-{i}");
+    for (k, id) in robot_ids.iter().enumerate() {
+        let (i, robot) = (k + 1, id.to_string());
         // Distinct start poses: a row 4 m apart, all facing east.
         let start = format!("{},{},0", 0.0, (i as f64 - 1.0) * 4.0);
         start_robot(
             &agent,
             &scenario,
             &robot,
-            i,
+            i as u32,
             &start,
-            &endpoint,
+            (&endpoint, a.pki.as_deref()),
             a.record_mcap
                 .as_ref()
                 .map(|d| d.join(format!("{robot}.mcap"))),
@@ -634,11 +807,23 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
         "terranav demo: open http://{addr}/  ({} simulated robots; Ctrl-C to stop)",
         a.robots
     );
-    println!("  zenoh    {endpoint}");
-    if zport == DEFAULT_ZENOH_PORT {
+    println!(
+        "  zenoh    {endpoint}{}",
+        if secure {
+            " (TLS with mutual authentication)"
+        } else {
+            ""
+        }
+    );
+    let pki_arg = a
+        .pki
+        .as_ref()
+        .map(|d| format!(" --pki {}", d.display()))
+        .unwrap_or_default();
+    if zport == DEFAULT_ZENOH_PORT && !secure {
         println!("  CLI      operator-station robots | goal --robot husky-1 --xy X,Y | stop --robot husky-1");
     } else {
-        println!("  CLI      (port 7447 was taken) operator-station robots --connect {endpoint}");
+        println!("  CLI      operator-station robots --connect {endpoint}{pki_arg}");
     }
     println!(
         "  database {}{}",
@@ -649,23 +834,18 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
             ""
         }
     );
-    let mut tick = tokio::time::interval(Duration::from_millis(500));
-    let stop = stop_signal();
-    tokio::pin!(stop);
-    loop {
-        tokio::select! {
-            _ = &mut stop => break,
-            _ = tick.tick() => {
-                children.0.retain_mut(|(name, c)| match c.try_wait() {
-                    Ok(Some(status)) => {
-                        eprintln!("robot {name} exited with {status}");
-                        false
-                    }
-                    _ => true,
-                });
+    let mut watch = a.pki.as_deref().map(RegisterWatch::new);
+    run_until_stopped(&mut running, &z, &mut watch, || {
+        children.0.retain_mut(|(name, c)| match c.try_wait() {
+            Ok(Some(status)) => {
+                eprintln!("robot {name} exited with {status}");
+                false
             }
-        }
-    }
+            _ => true,
+        });
+        false
+    })
+    .await;
     drop(children);
     running.stop().await;
     drop(tmp);
@@ -708,11 +888,7 @@ fn tempfile_dir() -> anyhow::Result<PathBuf> {
 
 /// A short-lived Zenoh session for CLI commands (connects to the station's endpoint by default).
 async fn client_session(z: &ZenohArgs) -> anyhow::Result<zenoh::Session> {
-    let mut z = z.clone();
-    if z.zenoh.is_none() && z.connect.is_none() {
-        z.connect = Some(DEFAULT_LISTEN_ENDPOINT.to_string());
-    }
-    let zc = zenoh_config(&z, None)?;
+    let zc = zenoh_config(z, Role::Client)?;
     zenoh::open(zc)
         .await
         .map_err(|e| anyhow::anyhow!("zenoh: {e}"))
@@ -800,13 +976,15 @@ async fn robot_session(c: &ClientArgs, robot: &str) -> anyhow::Result<zenoh::Ses
     Ok(s)
 }
 
-/// Sends one command and closes the session.
-async fn put_and_close(
+/// Sends one command in its envelope (this call's own sender id) and closes the session.
+async fn put_and_close<T: serde::Serialize>(
     s: zenoh::Session,
     rid: &RobotId,
     topic: Topic,
-    payload: Vec<u8>,
+    cmd: &T,
 ) -> anyhow::Result<()> {
+    let stamper = common::command::CommandStamper::new(station::sender_id(&s));
+    let payload = msg::encode_cmd(stamper.next(station::now_unix_ms()), cmd);
     let r = s
         .put(keys::key(rid, topic), payload)
         .congestion_control(zenoh::qos::CongestionControl::Block)
@@ -817,15 +995,16 @@ async fn put_and_close(
     r
 }
 
-async fn send_to_robot(
+/// Sends `cmd` to a robot that is online.
+async fn send_to_robot<T: serde::Serialize>(
     c: &ClientArgs,
     robot: &str,
     topic: Topic,
-    payload: Vec<u8>,
+    cmd: &T,
 ) -> anyhow::Result<()> {
     let rid = RobotId::new(robot)?;
     let s = robot_session(c, robot).await?;
-    put_and_close(s, &rid, topic, payload).await
+    put_and_close(s, &rid, topic, cmd).await
 }
 
 /// The robot's position from one of its poses (it publishes them at 10 Hz), for the goal
@@ -879,7 +1058,7 @@ async fn goal(a: GoalArgs) -> anyhow::Result<()> {
         let _ = s.close().await;
         bail!("goal refused: {} [{}]", r.message, r.code.as_str());
     }
-    put_and_close(s, &rid, Topic::CmdGoal, msg::encode(&cmd)).await?;
+    put_and_close(s, &rid, Topic::CmdGoal, &cmd).await?;
     println!(
         "{}",
         serde_json::json!({"ok": true, "robot": a.robot, "sent": cmd})
@@ -891,7 +1070,7 @@ async fn stop(a: StopArgs) -> anyhow::Result<()> {
     let cmd = StopCmd {
         reason: "operator-station stop".into(),
     };
-    send_to_robot(&a.client, &a.robot, Topic::CmdStop, msg::encode(&cmd)).await?;
+    send_to_robot(&a.client, &a.robot, Topic::CmdStop, &cmd).await?;
     println!(
         "{}",
         serde_json::json!({"ok": true, "robot": a.robot, "sent": cmd})
@@ -1060,6 +1239,49 @@ mod tests {
             http_addr(None, 9000, None).unwrap(),
             "127.0.0.1:9000".parse().unwrap()
         );
+    }
+
+    #[test]
+    fn http_off_loopback_needs_tls() {
+        let any: SocketAddr = "0.0.0.0:8443".parse().unwrap();
+        let lo: SocketAddr = "127.0.0.1:8080".parse().unwrap();
+        let e = http_tls(any, None, None, None).unwrap_err().to_string();
+        assert!(e.contains("--tls-cert") && e.contains("--pki"), "{e}");
+        assert_eq!(http_tls(lo, None, None, None).unwrap(), None);
+        let (c, k) = http_tls(any, None, None, Some(Path::new("pki")))
+            .unwrap()
+            .unwrap();
+        assert!(c.ends_with("station/station.crt") && k.ends_with("station/station.key"));
+        let own = http_tls(lo, Some(Path::new("a.crt")), Some(Path::new("a.key")), None).unwrap();
+        assert_eq!(own, Some((PathBuf::from("a.crt"), PathBuf::from("a.key"))));
+    }
+
+    #[test]
+    fn zenoh_off_loopback_without_pki_is_refused() {
+        let z = |listen: Option<&str>, connect: Option<&str>| ZenohArgs {
+            zenoh: None,
+            zenoh_listen: listen.map(String::from),
+            connect: connect.map(String::from),
+            pki: None,
+        };
+        let e = zenoh_config(&z(Some("tcp/0.0.0.0:7447"), None), Role::Station)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("pki init") && e.contains("tls/0.0.0.0:7447"),
+            "{e}"
+        );
+        assert!(zenoh_config(&z(None, Some("tcp/192.0.2.1:7447")), Role::Client).is_err());
+        assert!(zenoh_config(&z(None, None), Role::Station).is_ok());
+        assert!(zenoh_config(&z(None, None), Role::Client).is_ok());
+        // The shipped station file listens on loopback.
+        let file = ZenohArgs {
+            zenoh: Some(
+                PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config/zenoh/station.json5"),
+            ),
+            ..z(None, None)
+        };
+        assert!(zenoh_config(&file, Role::Station).is_ok());
     }
 
     #[test]

@@ -411,6 +411,18 @@ impl Agent {
                         ),
                     ));
                 }
+                if version < self.zones.version {
+                    // Only a station may send zones (the access rules), but an old set captured
+                    // and sent again must not lift keep-out zones drawn since.
+                    return Err(refusal(
+                        RefusalCode::Replayed,
+                        "zones",
+                        format!(
+                            "zone set {version} is older than the set {} in force",
+                            self.zones.version
+                        ),
+                    ));
+                }
                 tracing::info!("zones: set {version}, {} zones", zones.len());
                 self.zones = ZoneMap { version, zones };
                 // The path in hand may cross a new keep-out zone: check it with the next sweep.

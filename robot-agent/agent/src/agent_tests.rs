@@ -48,6 +48,18 @@ fn a_goal_inside_keep_out_is_refused_and_a_later_goal_clears_the_refusal() {
     assert_eq!(e.code, RefusalCode::ZoneFrameMismatch);
     a.on_command(Command::at(0.0, zones("s1"))).unwrap();
     assert_eq!(a.status(0.0).zones_version, 7);
+    let mut old = zones("s1");
+    if let CommandKind::Zones { version, zones, .. } = &mut old {
+        *version = 6;
+        zones.clear();
+    }
+    let e = a.on_command(Command::at(0.0, old)).unwrap_err();
+    assert_eq!(
+        e.code,
+        RefusalCode::Replayed,
+        "an older set never lifts a zone"
+    );
+    assert_eq!(a.status(0.0).zones_version, 7);
     let e = a
         .on_command(Command::at(1.0, goal(1, 5.0, 0.0)))
         .unwrap_err();
@@ -55,7 +67,7 @@ fn a_goal_inside_keep_out_is_refused_and_a_later_goal_clears_the_refusal() {
     assert!(e.message.contains("pond"), "{e}");
     let s = a.status(1.0);
     assert!(s.last_error.as_deref().unwrap_or("").contains("keep-out"));
-    assert_eq!(s.commands_refused, 2);
+    assert_eq!(s.commands_refused, 3);
     a.on_command(Command::at(2.0, goal(2, 9.0, 0.0))).unwrap();
     assert_eq!(
         a.status(2.0).last_error,

@@ -306,6 +306,51 @@ mod tests {
     }
 
     #[test]
+    fn a_low_obstacle_only_the_depth_camera_sees_stops_the_robot_while_fresh() {
+        let mut d = driver();
+        // The LiDAR's sweeps see nothing (a low box below its lowest beam, close in).
+        d.on_sweep(1.0, std::iter::empty(), &at_origin());
+        let path = [(0.0, 0.0), (5.0, 0.0)];
+        let go = d.follow(
+            Tracker::Path,
+            &Pose2::default(),
+            &path,
+            d.stop_ahead(1.05),
+            true,
+        );
+        assert!(go.v_mps > 0.0, "nothing in the way: drives");
+        // The camera's frame: a 0.25 m box 0.6 m ahead of the centre, in the stop zone.
+        let box_pts: Vec<(f64, f64, f64)> = (0..10)
+            .map(|i| (0.6, -0.05 + 0.01 * i as f64, 0.25))
+            .collect();
+        d.on_depth_frame(1.05, box_pts.iter().copied());
+        assert!(
+            d.stop_ahead(1.1),
+            "the camera's obstacle stops forward motion"
+        );
+        let c = d.follow(
+            Tracker::Path,
+            &Pose2::default(),
+            &path,
+            d.stop_ahead(1.1),
+            true,
+        );
+        assert_eq!(c.v_mps, 0.0);
+        // A later LiDAR sweep that sees nothing does not clear the camera's stop ...
+        d.on_sweep(1.2, std::iter::empty(), &at_origin());
+        assert!(d.stop_ahead(1.25));
+        // ... a camera frame without the box does, and so does a stale camera frame.
+        d.on_depth_frame(1.3, std::iter::empty());
+        assert!(!d.stop_ahead(1.35));
+        d.on_depth_frame(1.3, box_pts.iter().copied());
+        d.on_sweep(1.6, std::iter::empty(), &at_origin());
+        assert!(
+            !d.stop_ahead(1.7),
+            "a camera frame older than the timeout no longer stops"
+        );
+    }
+
+    #[test]
     fn a_stop_lasts_only_while_it_holds() {
         let mut d = driver();
         // A box of points 0.6 m ahead of the centre, 0.5 m up: in the stop zone.

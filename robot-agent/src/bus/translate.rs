@@ -175,6 +175,8 @@ pub fn pose_to_wire(p: &PoseEstimate, t_unix_ms: u64, seq: u32) -> Pose {
 pub struct RuntimeCounters {
     /// Payloads that failed to decode since start.
     pub decode_errors: u32,
+    /// Commands refused as replays since start.
+    pub commands_replayed: u32,
     /// Collisions (simulator truth) since start.
     pub collisions: u32,
     /// Sweeps per second.
@@ -225,6 +227,7 @@ pub fn status_to_wire(s: &AgentStatus, t_unix_ms: u64, c: RuntimeCounters) -> St
         }),
         last_error: s.last_error.clone(),
         commands_refused: s.commands_refused,
+        commands_replayed: c.commands_replayed,
         decode_errors: c.decode_errors,
         collisions: c.collisions,
         scan_hz: c.scan_hz,

@@ -1,7 +1,7 @@
 //! The mission flags of `robot-agent sim`: headless goal missions, teach-and-repeat, and the live
 //! robot on the bus.
 
-use crate::bus::{BusConfig, ZenohSettings};
+use crate::bus::{secure, BusConfig, ZenohSettings};
 use crate::config::{default_config_dir, load_agent_config};
 use crate::run::{self, HeadlessOptions};
 use agent::command::GoalTarget;
@@ -31,9 +31,15 @@ pub struct MissionArgs {
     /// Robot id on the bus (live mode).
     #[arg(long, default_value = "husky-1")]
     pub robot: String,
-    /// Zenoh endpoint to connect to (live mode), e.g. tcp/127.0.0.1:7447.
+    /// Zenoh endpoint to connect to (live mode), e.g. tcp/127.0.0.1:7447 (with --pki:
+    /// tls/STATION:7447; default tls/127.0.0.1:7447). Plain endpoints off loopback are refused.
     #[arg(long, value_name = "ENDPOINT")]
     pub connect: Option<String>,
+    /// The robot's certificates (live mode): the folder `operator-station pki issue --robot ID`
+    /// wrote (PKI/robots/ID/, copied to the robot), or the fleet's PKI folder itself. Turns on
+    /// TLS with mutual authentication and the robot's access rules.
+    #[arg(long, value_name = "DIR")]
+    pub pki: Option<PathBuf>,
     /// Zenoh json5 config file (live mode).
     #[arg(long, value_name = "FILE")]
     pub zenoh: Option<PathBuf>,
@@ -179,19 +185,13 @@ pub fn run_live(
     scenario: &sim::Scenario,
     scenario_name: &str,
     args: &MissionArgs,
+    listen: &[String],
     seed: u64,
 ) -> anyhow::Result<()> {
     let cfg = agent_config(args)?;
     let opts = options(args, seed)?;
     let robot = RobotId::new(args.robot.clone()).map_err(|e| anyhow::anyhow!("--robot: {e}"))?;
-    let mut bus = BusConfig::new(robot.clone());
-    if args.zenoh.is_some() || args.connect.is_some() {
-        bus.zenoh = ZenohSettings {
-            file: args.zenoh.clone(),
-            connect: args.connect.iter().cloned().collect(),
-            ..ZenohSettings::default()
-        };
-    }
+    let bus = bus_config(args, listen, &robot)?;
     let stop = Arc::new(AtomicBool::new(false));
     // SIGINT/SIGTERM end the loop, so that a recording closes with its summary.
     super::run::stop_on_signals(stop.clone())?;
@@ -199,6 +199,39 @@ pub fn run_live(
         watch_parent(stop.clone());
     }
     run::live::run_live(scenario, scenario_name, cfg, robot, bus, &opts, stop)
+}
+
+/// The live robot's bus: endpoints, certificates; checked here, before the world is built, so a
+/// refused endpoint is reported at once.
+/// `listen`: `sim --listen`, so stations can link to the robot directly (with --pki: tls/...);
+/// default a loopback port, or none with --pki.
+fn bus_config(args: &MissionArgs, listen: &[String], robot: &RobotId) -> anyhow::Result<BusConfig> {
+    let mut bus = BusConfig::new(robot.clone());
+    let tls = match &args.pki {
+        Some(dir) => Some(secure::robot_files(dir, robot)?),
+        None => None,
+    };
+    if args.zenoh.is_some() || args.connect.is_some() || !listen.is_empty() || tls.is_some() {
+        let default_connect = match (&args.zenoh, &tls) {
+            (None, Some(_)) => vec![format!(
+                "tls/{}",
+                crate::bus::DEFAULT_STATION_ENDPOINT
+                    .split_once('/')
+                    .map_or("127.0.0.1:7447", |(_, a)| a)
+            )],
+            (None, None) => vec![crate::bus::DEFAULT_STATION_ENDPOINT.to_string()],
+            (Some(_), _) => Vec::new(),
+        };
+        bus.zenoh = ZenohSettings {
+            file: args.zenoh.clone(),
+            connect: args.connect.clone().map_or(default_connect, |c| vec![c]),
+            listen: listen.to_vec(),
+            tls,
+            ..ZenohSettings::default()
+        };
+    }
+    bus.zenoh.to_config()?;
+    Ok(bus)
 }
 
 /// The parent process as it was when this process started ([`note_parent`]).

@@ -2,7 +2,7 @@
 //! SIGINT/SIGTERM. Sources and the base come from the `[io]` section of the robot file, each
 //! overridable here; see `run::io_config` and `io::source` for the specs.
 
-use crate::bus::{BusConfig, ZenohSettings};
+use crate::bus::{secure, BusConfig, ZenohSettings};
 use crate::config::{default_config_dir, load_agent_config_with, load_run_file};
 use crate::run::io_config::IoConfig;
 use crate::run::nav_computer::NavComputerBase;
@@ -34,6 +34,12 @@ pub struct RunArgs {
     /// Zenoh json5 config file for the station session.
     #[arg(long, value_name = "FILE")]
     pub zenoh: Option<PathBuf>,
+    /// The robot's certificates: the folder `operator-station pki issue --robot ID` wrote
+    /// (PKI/robots/ID/, copied to the robot), or the fleet's PKI folder. The station link is then
+    /// TLS with mutual authentication under the robot's access rules (default
+    /// tls/127.0.0.1:7447). Without it, a station endpoint off loopback is refused.
+    #[arg(long, value_name = "DIR")]
+    pub pki: Option<PathBuf>,
     /// LiDAR source (`ros2:TOPIC`, `vlp16-udp:PORT`); overrides `[io] lidar`.
     #[arg(long, value_name = "SPEC")]
     pub lidar: Option<String>,
@@ -217,15 +223,28 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         cfg.datum = Some(parse_datum(d)?);
     }
     let robot = RobotId::new(args.robot.clone()).map_err(|e| anyhow::anyhow!("--robot: {e}"))?;
+    let tls = match &args.pki {
+        Some(dir) => Some(secure::robot_files(dir, &robot)?),
+        None => None,
+    };
+    let connect = if args.connect.is_empty() && args.zenoh.is_none() && tls.is_some() {
+        vec![crate::bus::DEFAULT_STATION_ENDPOINT.replacen("tcp/", "tls/", 1)]
+    } else {
+        args.connect.clone()
+    };
     let station = ZenohSettings {
         file: args.zenoh.clone(),
-        connect: args.connect.clone(),
+        connect,
+        tls: tls.clone(),
         ..ZenohSettings::default()
     };
     let mut bus = BusConfig::new(robot.clone());
-    if args.zenoh.is_some() || !args.connect.is_empty() {
+    if args.zenoh.is_some() || !args.connect.is_empty() || tls.is_some() {
         bus.zenoh = station.clone();
     }
+    // Refused endpoints (plain off loopback, or not tls/ with --pki) are reported before any
+    // source is opened.
+    bus.zenoh.to_config()?;
 
     let record = args.record.options(&dir, &robot_file)?;
     if let Some(path) = &args.replay {
@@ -280,6 +299,12 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         } else {
             args.ros2_connect.clone()
         };
+        anyhow::ensure!(
+            !(connect.is_empty() && tls.is_some()),
+            "with --pki the station link is TLS under the robot's access rules, which carry no \
+             ROS 2 topics: give the ROS 2 side its own endpoint (--ros2-connect, or [io] \
+             ros2_connect), e.g. tcp/127.0.0.1:7447 for a bridge on the robot"
+        );
         let zenoh = if connect.is_empty() {
             bus.zenoh.clone()
         } else {

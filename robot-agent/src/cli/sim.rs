@@ -58,7 +58,9 @@ pub struct SimArgs {
     /// `--serve-ros2`: ROS_DOMAIN_ID (rmw form).
     #[arg(long, default_value_t = 0, value_name = "ID")]
     pub ros2_domain_id: u32,
-    /// `--serve-ros2`: Zenoh endpoint to listen on, e.g. tcp/127.0.0.1:7450 (as a bridge does).
+    /// Zenoh endpoint to listen on: with `--serve-ros2` the hardware's, e.g. tcp/127.0.0.1:7450
+    /// (as a bridge does); live, so stations can link to the robot directly (with --pki:
+    /// tls/ADDR:PORT; default a loopback port, or none with --pki). Off loopback needs --pki.
     #[arg(long, value_name = "ENDPOINT")]
     pub listen: Vec<String>,
     /// `--serve-ros2`: also publish the depth camera (`depth/points`).
@@ -139,7 +141,13 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
                 .file_stem()
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default();
-            return super::mission::run_live(&scenario, &name, &args.mission, args.seed);
+            return super::mission::run_live(
+                &scenario,
+                &name,
+                &args.mission,
+                &args.listen,
+                args.seed,
+            );
         }
         return super::mission::run_headless(&scenario, &args.mission, args.seed);
     }

@@ -158,13 +158,15 @@ impl Outputs {
                 format!("{}; {}", counters.faults.join("; "), agent_status.reason);
         }
         let state = (agent_status.mode, agent_status.phase, agent_status.driving);
+        let bus_counters = bus.map(|b| b.counters()).unwrap_or_default();
         let status = translate::status_to_wire(
             &agent_status,
             agent.unix_ms(t_s),
             RuntimeCounters {
-                decode_errors: bus
-                    .map_or(0, |b| b.counters().decode_errors)
+                decode_errors: bus_counters
+                    .decode_errors
                     .saturating_add(u32::try_from(counters.bad_inputs).unwrap_or(u32::MAX)),
+                commands_replayed: bus_counters.commands_replayed,
                 collisions: counters.collisions,
                 scan_hz: self.scan_times.len() as f32 / SCAN_RATE_WINDOW_S as f32,
                 plan_hz: 0.0,
