@@ -39,8 +39,12 @@ python3 -c 'import rosbags' 2>/dev/null || { say "installing rosbags (pip)"; pyt
 # tests/record.rs reads recordings with an independent MCAP reader and validates their messages.
 python3 -c 'import mcap, jsonschema' 2>/dev/null || { say "installing mcap, jsonschema (pip)"; python3 -m pip install -q mcap jsonschema || pip install -q mcap jsonschema; }
 
-say "building binaries (release)"
-cargo build --release --workspace --bins
+# Binaries and tests in one build: `cargo test` does not build every binary the cross-process
+# tests start, and a separate `--bins` build resolves features without the dev-dependencies, so
+# zenoh, axum and every workspace crate would be compiled twice (23 units, measured with
+# `--unit-graph`).
+say "building binaries and tests (release)"
+cargo build --release --workspace --bins --tests
 
 say "running tests (release)"
 cargo test --release --workspace "$@"
