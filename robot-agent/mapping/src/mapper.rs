@@ -205,6 +205,8 @@ pub struct Mapper {
     win: Window,
     scan_id: u32,
     robot: Option<RobotPose>,
+    /// Frame corrections too small to apply yet (see [`Mapper::follow_frame`]).
+    frame_lag: nalgebra::Isometry3<f64>,
     last_t_s: Option<f64>,
     /// Sorted (distance, dx, dy) offsets within the cost distance, for inflation.
     offsets: Vec<(f64, i64, i64)>,
@@ -239,6 +241,7 @@ impl Mapper {
             win: Window::new(half),
             scan_id: 0,
             robot: None,
+            frame_lag: nalgebra::Isometry3::identity(),
             last_t_s: None,
             offsets,
             full: false,

@@ -413,6 +413,34 @@ fn cells_follow_a_frame_correction_and_old_cells_keep_theirs() {
     );
 }
 
+/// Frame corrections too small to matter are kept and composed, not dropped: four lifts of
+/// 0.1 mm move no cell, and the 1 cm lift after them moves the cells by all five together.
+#[test]
+fn slivers_of_frame_correction_add_up_before_the_cells_follow() {
+    let mut m = Mapper::new(Config::default()).unwrap();
+    drive(
+        &mut m,
+        &|_, _, _| 0.0,
+        &line((-3.0, 0.0), (0.0, 0.0), 0.0, 3.0),
+    );
+    let (cx, cy) = cell_of(&m, -3.0, 4.0);
+    let h0 = m.height_m(cx, cy).unwrap();
+    let sliver = nalgebra::Isometry3::translation(0.0, 0.0, 1e-4);
+    for _ in 0..4 {
+        assert_eq!(m.follow_frame(&sliver, 30.0), 0, "a sliver moved cells");
+    }
+    let lift = nalgebra::Isometry3::translation(0.0, 0.0, 0.01);
+    assert!(m.follow_frame(&lift, 30.0) > 1000);
+    let h = m.height_m(cx, cy).unwrap();
+    assert!(
+        (h - h0 - 0.0104).abs() < 1e-5,
+        "moved by {} m, not 10.4 mm",
+        h - h0
+    );
+    // Nothing is kept over: the next sliver waits again.
+    assert_eq!(m.follow_frame(&sliver, 30.0), 0);
+}
+
 /// A 0.3 m wide strip at y = 0 that is a 6 cm rise from the ground on its north side and a 10 cm
 /// drop to the ground on its south side. Passed at 2.5 m on the north side, the drop lies in the
 /// strip's shadow; a later pass 13 m to the south (beyond `processing_distance_m`) shows it.

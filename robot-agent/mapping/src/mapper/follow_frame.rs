@@ -5,6 +5,11 @@
 use super::Mapper;
 use nalgebra::Isometry3;
 
+/// Stored heights may lag the map frame by this much before they follow it, metres: far below
+/// the height spread of flat ground in one cell (`grass_sd_min_m` is 8 mm), so no step or slope
+/// test can tell.
+const FOLLOW_TOLERANCE_M: f64 = 5e-4;
+
 impl Mapper {
     /// The map frame moved under the robot by `delta` (a GNSS or gravity correction of the
     /// frame: new map point = `delta` * old). Stored heights follow it, so the map stays what a
@@ -15,8 +20,14 @@ impl Mapper {
     /// as a step against its neighbours (a hard edge at 30 m, or following only the cells seen
     /// in the last 20 s, made 3-7 % of `slopes` false obstacles with the robot's own poses).
     /// Horizontal moves are ignored (a few centimetres, within a cell). Returns the cells moved.
+    ///
+    /// Corrections that move no point within the radius by more than half a millimetre are
+    /// kept and composed with the next ones instead: a pass touches every stored cell within
+    /// the radius (most of the map), and the gravity and GNSS loops bring two such slivers
+    /// for each correction that matters.
     pub fn follow_frame(&mut self, delta: &Isometry3<f64>, radius_m: f64) -> usize {
         let Some(robot) = self.robot else { return 0 };
+        let delta = &(delta * self.frame_lag);
         let full_m = 0.75 * radius_m;
         let taper_m = (radius_m - full_m).max(1e-9);
         let dz_at = |x: f64, y: f64, z: f64| (delta * nalgebra::Point3::new(x, y, z)).z - z;
@@ -32,10 +43,16 @@ impl Mapper {
                 .abs()
             })
             .fold(0.0, f64::max);
-        // Nothing to do for a purely horizontal correction (or a non-finite one).
-        if !worst.is_finite() || worst <= 1e-5 {
+        if !worst.is_finite() {
+            self.frame_lag = Isometry3::identity();
             return 0;
         }
+        // Nothing to do yet for a sliver or a purely horizontal correction.
+        if worst <= FOLLOW_TOLERANCE_M {
+            self.frame_lag = *delta;
+            return 0;
+        }
+        self.frame_lag = Isometry3::identity();
         let n = self.lattice.tile_cells as i64;
         let l = self.cfg.grid_size_m;
         let r2 = radius_m * radius_m;
