@@ -375,6 +375,25 @@ pub fn check_endpoints(
     Ok(())
 }
 
+/// The endpoints a Zenoh config listens on and connects to, read through `get_json` (the
+/// config's `get_json`, so this crate needs no Zenoh): its `listen/endpoints` and
+/// `connect/endpoints`. An error names the key.
+pub fn config_endpoints(
+    get_json: impl Fn(&str) -> Result<String, String>,
+) -> Result<Vec<(Direction, String)>, String> {
+    let mut eps = Vec::new();
+    for (dir, key) in [
+        (Direction::Listen, "listen/endpoints"),
+        (Direction::Connect, "connect/endpoints"),
+    ] {
+        let json = get_json(key).map_err(|e| format!("zenoh config {key}: {e}"))?;
+        let v: Value =
+            serde_json::from_str(&json).map_err(|e| format!("zenoh config {key}: {e}"))?;
+        eps.extend(endpoints_in_json(&v).into_iter().map(|e| (dir, e)));
+    }
+    Ok(eps)
+}
+
 /// The endpoints of a Zenoh `listen/endpoints` or `connect/endpoints` JSON value as Zenoh
 /// reports it: a list, or a list per mode (`{"router": [...], "peer": [...]}`): every one found.
 pub fn endpoints_in_json(v: &Value) -> Vec<String> {
@@ -512,5 +531,28 @@ mod tests {
         }
         let r = robot_acl(&rid("r1")).to_string();
         assert!(r.contains("terranav/r1/cmd/**") && !r.contains("terranav/r2"));
+    }
+
+    #[test]
+    fn a_configs_endpoints_are_read_from_both_keys_and_a_bad_one_is_named() {
+        let eps = config_endpoints(|k| {
+            Ok(match k {
+                "listen/endpoints" => r#"{"router": ["tcp/0.0.0.0:7447"], "peer": []}"#,
+                _ => r#"["tls/10.0.0.2:7447"]"#,
+            }
+            .to_owned())
+        })
+        .unwrap();
+        assert_eq!(
+            eps,
+            vec![
+                (Direction::Listen, "tcp/0.0.0.0:7447".to_owned()),
+                (Direction::Connect, "tls/10.0.0.2:7447".to_owned()),
+            ]
+        );
+        let e =
+            config_endpoints(|k| Ok(if k.starts_with("connect") { "{" } else { "[]" }.to_owned()))
+                .unwrap_err();
+        assert!(e.contains("connect/endpoints"), "{e}");
     }
 }

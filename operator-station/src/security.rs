@@ -6,8 +6,7 @@
 
 use std::path::Path;
 
-use anyhow::Context;
-use common::security::{self, Direction, FleetDir, Side};
+use common::security::{self, FleetDir, Side};
 
 use crate::pki;
 
@@ -45,22 +44,8 @@ pub fn station_acl(fleet: &FleetDir) -> anyhow::Result<serde_json::Value> {
 /// Refuses a config that would listen on or connect to a plain link off loopback (or, when
 /// `secure`, anything but `tls/`), with what to do instead.
 pub fn check_endpoints(c: &zenoh::Config, secure: bool) -> anyhow::Result<()> {
-    let mut eps = Vec::new();
-    for (dir, key) in [
-        (Direction::Listen, "listen/endpoints"),
-        (Direction::Connect, "connect/endpoints"),
-    ] {
-        let json = c
-            .get_json(key)
-            .map_err(|e| anyhow::anyhow!("zenoh config {key}: {e}"))?;
-        let v: serde_json::Value =
-            serde_json::from_str(&json).with_context(|| format!("zenoh config {key}"))?;
-        eps.extend(
-            security::endpoints_in_json(&v)
-                .into_iter()
-                .map(|e| (dir, e)),
-        );
-    }
+    let eps = security::config_endpoints(|k| c.get_json(k).map_err(|e| e.to_string()))
+        .map_err(|e| anyhow::anyhow!(e))?;
     security::check_endpoints(Side::Station, secure, &eps).map_err(|e| anyhow::anyhow!(e.0))
 }
 

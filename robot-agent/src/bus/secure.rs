@@ -9,7 +9,7 @@
 use std::path::{Path, PathBuf};
 
 use common::keys::RobotId;
-use common::security::{self, CertFiles, Direction, Side};
+use common::security::{self, CertFiles, Side};
 
 use super::BusError;
 
@@ -90,21 +90,7 @@ pub fn apply_robot_acl(c: &mut zenoh::Config, robot: &RobotId) -> Result<(), Bus
 /// Refuses the config when it would listen on or connect to a plain link off loopback (or, when
 /// `secure`, anything but `tls/`), with what to do instead.
 pub fn check_endpoints(c: &zenoh::Config, secure: bool) -> Result<(), BusError> {
-    let mut eps = Vec::new();
-    for (dir, key) in [
-        (Direction::Listen, "listen/endpoints"),
-        (Direction::Connect, "connect/endpoints"),
-    ] {
-        let json = c
-            .get_json(key)
-            .map_err(|e| BusError::Config(format!("{key}: {e}")))?;
-        let v: serde_json::Value =
-            serde_json::from_str(&json).map_err(|e| BusError::Config(format!("{key}: {e}")))?;
-        eps.extend(
-            security::endpoints_in_json(&v)
-                .into_iter()
-                .map(|e| (dir, e)),
-        );
-    }
+    let eps = security::config_endpoints(|k| c.get_json(k).map_err(|e| e.to_string()))
+        .map_err(BusError::Config)?;
     security::check_endpoints(Side::Robot, secure, &eps).map_err(|e| BusError::Refused(e.0))
 }
