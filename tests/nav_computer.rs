@@ -54,7 +54,6 @@ fn to_line(p: (f64, f64), line: &[(f64, f64)]) -> f64 {
 }
 
 #[test]
-#[ignore = "livelocks now and then under CPU load (the detour and the wait for the route to clear alternate at the box, issue 22's note); run by hand with -- --ignored"]
 fn teach_and_repeat_return_through_a_navigation_computer_detours_a_new_box() {
     let dir = tempfile::tempdir().unwrap();
     let station = Station::start(Ports::new(), &dir.path().join("s.db"));
