@@ -1,0 +1,197 @@
+//! The blocking-friendly face: the bus on a background tokio runtime, for a synchronous loop.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use common::command::RobotContext;
+use common::grid::TileIndex;
+use common::msg::{Path, Pose, Route, Session, Status};
+use tokio::sync::mpsc;
+
+use super::session::{RobotBus, Shared};
+use super::{now_unix_ms, BusConfig, BusCounters, BusError, Command, DEADMAN};
+
+/// Messages from the synchronous loop to the bus task.
+enum Out {
+    Session(Session),
+    Pose(Pose),
+    Tile(TileIndex, Vec<u8>),
+    Path(Path),
+    Status(Status),
+    Route(Route),
+    ClearTiles,
+}
+
+/// Blocking-friendly face of the bus for a synchronous loop: owns a small tokio runtime on a
+/// background thread; `publish_*` never block (they queue for the bus task).
+pub struct BusHandle {
+    tx: mpsc::UnboundedSender<Out>,
+    commands: std::sync::mpsc::Receiver<Command>,
+    shared: Arc<Shared>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    _stop: Option<tokio::sync::oneshot::Sender<()>>,
+}
+
+impl BusHandle {
+    /// Starts the runtime and opens the bus; returns when the session is open.
+    pub fn start(config: BusConfig) -> Result<Self, BusError> {
+        let (cmd_tx, cmd_rx) = std::sync::mpsc::channel();
+        let (tx, mut rx) = mpsc::unbounded_channel::<Out>();
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel::<Result<Arc<Shared>, BusError>>();
+        let (stop_tx, mut stop_rx) = tokio::sync::oneshot::channel::<()>();
+        let thread = std::thread::Builder::new()
+            .name("robot-bus".into())
+            .spawn(move || {
+                let rt = match tokio::runtime::Builder::new_multi_thread()
+                    .worker_threads(2)
+                    .enable_all()
+                    .build()
+                {
+                    Ok(rt) => rt,
+                    Err(e) => {
+                        let _ = ready_tx.send(Err(BusError::Runtime(e.to_string())));
+                        return;
+                    }
+                };
+                rt.block_on(async move {
+                    let bus = match RobotBus::open(config, cmd_tx).await {
+                        Ok(b) => b,
+                        Err(e) => {
+                            let _ = ready_tx.send(Err(e));
+                            return;
+                        }
+                    };
+                    let _ = ready_tx.send(Ok(bus.shared.clone()));
+                    loop {
+                        let out = tokio::select! {
+                            m = rx.recv() => match m { Some(m) => m, None => break },
+                            _ = &mut stop_rx => break,
+                        };
+                        let r = match out {
+                            Out::Session(s) => bus.publish_session(&s).await,
+                            Out::Pose(p) => bus.publish_pose(&p).await,
+                            Out::Tile(i, b) => bus.publish_tile(i, b).await,
+                            Out::Path(p) => bus.publish_path(&p).await,
+                            Out::Status(s) => bus.publish_status(&s).await,
+                            Out::Route(r) => bus.publish_route(&r).await,
+                            Out::ClearTiles => {
+                                bus.clear_tiles();
+                                Ok(())
+                            }
+                        };
+                        if let Err(e) = r {
+                            tracing::warn!("publish failed: {e}");
+                        }
+                    }
+                    let _ = bus.close().await;
+                });
+            })
+            .map_err(|e| BusError::Runtime(e.to_string()))?;
+        let shared = ready_rx
+            .recv()
+            .map_err(|_| BusError::Runtime("bus thread ended before opening".into()))??;
+        Ok(Self {
+            tx,
+            commands: cmd_rx,
+            shared,
+            thread: Some(thread),
+            _stop: Some(stop_tx),
+        })
+    }
+
+    fn send(&self, o: Out) {
+        // The bus task only ends when the handle is dropped; a send error then is harmless.
+        let _ = self.tx.send(o);
+    }
+
+    /// Publishes (and serves) the session.
+    pub fn publish_session(&self, s: &Session) {
+        self.send(Out::Session(s.clone()));
+    }
+    /// Publishes a pose.
+    pub fn publish_pose(&self, p: &Pose) {
+        self.send(Out::Pose(p.clone()));
+    }
+    /// Publishes (and serves) one tile encoded with `common::grid::encode_tile`.
+    pub fn publish_tile(&self, index: TileIndex, encoded: Vec<u8>) {
+        self.send(Out::Tile(index, encoded));
+    }
+    /// Publishes the path.
+    pub fn publish_path(&self, p: &Path) {
+        self.send(Out::Path(p.clone()));
+    }
+    /// Publishes the status.
+    pub fn publish_status(&self, s: &Status) {
+        self.send(Out::Status(s.clone()));
+    }
+    /// Publishes (and serves) a recorded route.
+    pub fn publish_route(&self, r: &Route) {
+        self.send(Out::Route(r.clone()));
+    }
+    /// Forgets every served tile.
+    pub fn clear_tiles(&self) {
+        self.send(Out::ClearTiles);
+    }
+
+    /// Tells the command checks where the robot is and what it has mapped.
+    pub fn set_context(&self, ctx: RobotContext) {
+        *self
+            .shared
+            .context
+            .lock()
+            .unwrap_or_else(|p| p.into_inner()) = ctx;
+    }
+
+    /// The next command, if any (validated, or `Refused`).
+    pub fn try_recv(&self) -> Option<Command> {
+        self.commands.try_recv().ok()
+    }
+
+    /// Waits up to `timeout` for the next command.
+    pub fn recv_timeout(&self, timeout: Duration) -> Option<Command> {
+        self.commands.recv_timeout(timeout).ok()
+    }
+
+    /// Counters for the status.
+    pub fn counters(&self) -> BusCounters {
+        self.shared.counters()
+    }
+
+    /// True when no drive command arrived within [`DEADMAN`] before `now` (or none ever).
+    pub fn drive_is_stale(&self, now: Instant) -> bool {
+        match *self
+            .shared
+            .last_drive
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+        {
+            Some((t, _)) => now.saturating_duration_since(t) > DEADMAN,
+            None => true,
+        }
+    }
+
+    /// Current Unix time in milliseconds (what every message's `t_unix_ms` should carry).
+    pub fn now_unix_ms() -> u64 {
+        now_unix_ms()
+    }
+
+    /// Flushes queued messages and closes the session.
+    pub fn close(mut self) {
+        self.shutdown();
+    }
+
+    fn shutdown(&mut self) {
+        // Dropping the queue sender lets the task drain what is queued, then close.
+        let (dead_tx, _) = mpsc::unbounded_channel();
+        drop(std::mem::replace(&mut self.tx, dead_tx));
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for BusHandle {
+    fn drop(&mut self) {
+        self.shutdown();
+    }
+}
