@@ -73,12 +73,23 @@ pub fn num(v: &serde_json::Value, k: &str) -> f64 {
         .unwrap_or_else(|| panic!("{k} missing in {v}"))
 }
 
-/// A TCP port that was free a moment ago on 127.0.0.1.
+/// A TCP port that was free a moment ago on 127.0.0.1, never the same twice in one test binary:
+/// the kernel may hand a port just released to the next bind, and two tests running side by side
+/// once got the same one (the second's session then connected to the first's listener and heard
+/// nothing of its own).
 pub fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("bind an ephemeral port")
+    static GIVEN: std::sync::Mutex<Vec<u16>> = std::sync::Mutex::new(Vec::new());
+    let mut given = GIVEN.lock().unwrap_or_else(|e| e.into_inner());
+    loop {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .map(|a| a.port())
+            .expect("bind an ephemeral port");
+        if !given.contains(&port) {
+            given.push(port);
+            return port;
+        }
+    }
 }
 
 /// A child process killed (and reaped) when dropped, so a failing test leaves nothing running.
