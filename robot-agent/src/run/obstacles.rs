@@ -81,17 +81,7 @@ pub fn distance_to_polyline(line: &[(f64, f64)], p: (f64, f64)) -> f64 {
         return (line[0].0 - p.0).hypot(line[0].1 - p.1);
     }
     line.windows(2)
-        .map(|w| {
-            let (a, b) = (w[0], w[1]);
-            let (dx, dy) = (b.0 - a.0, b.1 - a.1);
-            let len2 = dx * dx + dy * dy;
-            let t = if len2 > 0.0 {
-                (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / len2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            (a.0 + t * dx - p.0).hypot(a.1 + t * dy - p.1)
-        })
+        .map(|w| common::zone::segment_distance_m(w[0], w[1], p))
         .fold(f64::INFINITY, f64::min)
 }
 
