@@ -991,3 +991,117 @@ fn park_run_exports_one_merged_map_of_two_robots() {
         "the merged map holds every cell of both robots"
     );
 }
+
+/// The budget of the uplink test, kbit/s: below the 41 kbit/s this robot publishes unlimited
+/// (measured the same way), so the budget binds.
+const UPLINK_BUDGET_KBPS: f64 = 32.0;
+
+#[test]
+fn an_uplink_budget_holds_while_driving_and_every_tile_arrives_afterwards() {
+    let dir = tempfile::tempdir().unwrap();
+    let station = Station::start(Ports::new(), &dir.path().join("s.db"));
+    let mut observer = Observer::connect(&station.ports.endpoint());
+    let heard = observer.record("terranav/r1/**");
+    let mut r1 = Robot::start_with(
+        "r1",
+        &field_scenario(),
+        &station.ports.endpoint(),
+        "0,0,0",
+        1,
+        dir.path(),
+        &[format!("--uplink-budget-kbps={UPLINK_BUDGET_KBPS}")],
+    );
+    wait_robot_up(&station, &mut r1);
+    // A minute of driving: out along the lane and back, again and again.
+    let window = Duration::from_secs(60);
+    let t0 = Instant::now();
+    let goals = [(10.0, 0.0), (0.0, 0.0)];
+    let mut k = 0;
+    while t0.elapsed() < window {
+        let (x, y) = goals[k % 2];
+        send_goal(&station, "r1", x, y);
+        std::thread::sleep(Duration::from_secs(1));
+        wait_reached(&station, &mut r1, DRIVE);
+        k += 1;
+    }
+    let t1 = Instant::now();
+    // Counted as the robot's scheduler counts: key + payload + its per-message allowance.
+    let (bytes, poses, tiles) = {
+        let heard = heard.lock().unwrap();
+        let in_window: Vec<&Heard> = heard.iter().filter(|h| h.at >= t0 && h.at <= t1).collect();
+        let bytes: usize = in_window
+            .iter()
+            .map(|h| {
+                h.key.len() + h.payload.len() + robot_agent::bus::uplink::MESSAGE_OVERHEAD_BYTES
+            })
+            .sum();
+        let poses: Vec<msg::Pose> = in_window
+            .iter()
+            .filter(|h| h.key.ends_with("/pose"))
+            .map(|h| msg::decode(&h.payload).expect("pose decodes"))
+            .collect();
+        let tiles = in_window
+            .iter()
+            .filter(|h| h.key.contains("/tile/"))
+            .count();
+        (bytes, poses, tiles)
+    };
+    let secs = (t1 - t0).as_secs_f64();
+    let kbps = bytes as f64 * 8.0 / 1000.0 / secs;
+    let gaps = poses
+        .windows(2)
+        .filter(|w| w[1].seq != w[0].seq + 1)
+        .count();
+    let pose_hz = poses.len() as f64 / secs;
+    println!(
+        "uplink at {UPLINK_BUDGET_KBPS} kbit/s over {secs:.0} s of driving ({k} goals): \
+         {kbps:.1} kbit/s sent, {} poses ({pose_hz:.1} Hz, {gaps} sequence gaps), {tiles} tiles",
+        poses.len()
+    );
+    assert!(
+        kbps <= UPLINK_BUDGET_KBPS * 1.1,
+        "{kbps:.1} kbit/s over a {UPLINK_BUDGET_KBPS} kbit/s budget"
+    );
+    assert_eq!(gaps, 0, "every pose goes out, budget or not");
+    assert!(tiles > 0, "tiles flowed within the budget");
+    // The robot keeps mapping where it stands, so its newest tiles are always on their way;
+    // what it held when the drive ended must all reach the station: no cell missing or older.
+    let datum = single_datum(station.ports.http);
+    let db = dir.path().join("s.db");
+    let robot = cells_by_coordinate(observer.robot_tiles("r1").values());
+    assert!(!robot.is_empty(), "the robot serves its tiles");
+    let t_end = Instant::now();
+    let mut stale = usize::MAX;
+    let caught_up = wait_for(Duration::from_secs(120), || {
+        r1.assert_running();
+        std::thread::sleep(Duration::from_millis(500));
+        let merged = cells_by_coordinate(&stored_tiles(&db, &datum));
+        stale = stale_cells(&robot, &merged);
+        stale == 0
+    });
+    println!(
+        "caught up {:.1} s after the drive: {} cells",
+        t_end.elapsed().as_secs_f64(),
+        robot.len()
+    );
+    assert!(
+        caught_up,
+        "{stale} robot cells missing or older at the station"
+    );
+    // The robot's own account, written when its bus closes.
+    r1.signal("-INT");
+    let mut line = String::new();
+    wait_for(Duration::from_secs(15), || {
+        line = std::fs::read_to_string(&r1.log)
+            .unwrap_or_default()
+            .lines()
+            .find(|l| l.contains("uplink:"))
+            .unwrap_or_default()
+            .to_string();
+        !line.is_empty()
+    });
+    println!(
+        "robot: {}",
+        line.split("uplink:").nth(1).unwrap_or("(no summary)")
+    );
+}

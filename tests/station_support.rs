@@ -338,6 +338,17 @@ pub fn station_tile_index(port: u16, datum: &str) -> BTreeMap<TileIndex, u64> {
 pub struct Observer {
     rt: tokio::runtime::Runtime,
     session: zenoh::Session,
+    subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
+}
+
+/// One message an [`Observer`] heard: when, on which key, how many payload bytes, the payload.
+pub struct Heard {
+    /// When it arrived.
+    pub at: Instant,
+    /// Its key.
+    pub key: String,
+    /// Its payload.
+    pub payload: Vec<u8>,
 }
 
 impl Observer {
@@ -355,7 +366,34 @@ impl Observer {
             .expect("open zenoh");
         // Let the link come up and the routes propagate.
         std::thread::sleep(Duration::from_millis(500));
-        Observer { rt, session }
+        Observer {
+            rt,
+            session,
+            subscribers: Vec::new(),
+        }
+    }
+
+    /// Keeps every message on `key_expr` from now on in the returned list.
+    pub fn record(&mut self, key_expr: &str) -> std::sync::Arc<std::sync::Mutex<Vec<Heard>>> {
+        let heard = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+        let h = heard.clone();
+        let sub = self
+            .rt
+            .block_on(async {
+                self.session
+                    .declare_subscriber(key_expr.to_string())
+                    .callback(move |s| {
+                        h.lock().unwrap().push(Heard {
+                            at: Instant::now(),
+                            key: s.key_expr().as_str().to_string(),
+                            payload: s.payload().to_bytes().to_vec(),
+                        })
+                    })
+                    .await
+            })
+            .expect("subscriber");
+        self.subscribers.push(sub);
+        heard
     }
 
     /// Every tile `robot` serves now, decoded, from its `tile/**` queryable.

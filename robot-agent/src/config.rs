@@ -66,7 +66,7 @@ pub fn default_config_dir() -> PathBuf {
 }
 
 /// Sections of `robot.toml` that configure the runtime, not the robot's body.
-const RUN_SECTIONS: [&str; 2] = ["io", "runtime"];
+const RUN_SECTIONS: [&str; 3] = ["io", "runtime", "bus"];
 
 /// The robot file as a table (empty when the file is missing).
 fn robot_table(path: &Path) -> Result<(String, toml::Table), ConfigError> {
@@ -115,12 +115,13 @@ fn load_profile(robot_file: &Path) -> Result<common::robot::RobotProfile, Config
         })
 }
 
-/// The `[io]` and `[runtime]` sections of the robot file (`robot-agent run`).
+/// The `[io]`, `[runtime]` and `[bus]` sections of the robot file (`robot-agent run`).
 pub fn load_run_file(robot_file: &Path) -> Result<crate::run::io_config::RunFile, ConfigError> {
     let (path, table) = robot_table(robot_file)?;
     Ok(crate::run::io_config::RunFile {
         io: section(&path, &table, "io")?,
         runtime: section(&path, &table, "runtime")?,
+        bus: section(&path, &table, "bus")?,
     })
 }
 
@@ -177,6 +178,7 @@ mod tests {
     fn run_sections_load_and_refuse_unknown_keys() {
         let run = load_run_file(&shipped().join("robot.toml")).unwrap();
         assert_eq!(run.io, crate::run::io_config::IoConfig::default());
+        assert_eq!(run.bus, crate::bus::BusFile::default());
         assert_eq!(
             run.runtime.limits().unwrap(),
             crate::runtime::RuntimeLimits::default()

@@ -5,10 +5,12 @@ use std::time::{Duration, Instant};
 
 use common::command::RobotContext;
 use common::grid::TileIndex;
+use common::keys::Topic;
 use common::msg::{Path, Pose, Route, Session, Status};
 use tokio::sync::mpsc;
 
 use super::session::{RobotBus, Shared};
+use super::uplink::{Next, Uplink};
 use super::{now_unix_ms, BusConfig, BusCounters, BusError, Command, DEADMAN};
 
 /// Messages from the synchronous loop to the bus task.
@@ -32,9 +34,53 @@ pub struct BusHandle {
     _stop: Option<tokio::sync::oneshot::Sender<()>>,
 }
 
+/// Hands `m` to the uplink scheduler (tiles are served by the queryable from now on).
+fn queue_out(bus: &RobotBus, uplink: &mut Uplink<Out>, m: Out, now_s: f64) {
+    let cost = |topic: Topic, len: usize| Uplink::<Out>::cost(bus.key_len(topic), len);
+    match m {
+        Out::Tile(i, b) => {
+            bus.serve_tile(i, &b);
+            let bytes = cost(Topic::Tile { tx: i.tx, ty: i.ty }, b.len());
+            uplink.push_tile(i, Out::Tile(i, b), bytes, now_s);
+        }
+        Out::ClearTiles => {
+            bus.clear_tiles();
+            uplink.clear_tiles();
+        }
+        m => {
+            let (topic, len) = match &m {
+                Out::Session(s) => (Topic::Session, common::msg::encode(s).len()),
+                Out::Pose(p) => (Topic::Pose, common::msg::encode(p).len()),
+                Out::Path(p) => (Topic::Path, common::msg::encode(p).len()),
+                Out::Status(s) => (Topic::Status, common::msg::encode(s).len()),
+                Out::Route(r) => (Topic::Route, common::msg::encode(r).len()),
+                Out::Tile(..) | Out::ClearTiles => unreachable!("handled above"),
+            };
+            uplink.push_control(m, cost(topic, len));
+        }
+    }
+}
+
+/// Puts one message the uplink let go on the wire.
+async fn send_out(bus: &RobotBus, out: Out) {
+    let r = match out {
+        Out::Session(s) => bus.publish_session(&s).await,
+        Out::Pose(p) => bus.publish_pose(&p).await,
+        Out::Tile(i, b) => bus.put_tile(i, b).await,
+        Out::Path(p) => bus.publish_path(&p).await,
+        Out::Status(s) => bus.publish_status(&s).await,
+        Out::Route(r) => bus.publish_route(&r).await,
+        Out::ClearTiles => Ok(()),
+    };
+    if let Err(e) = r {
+        tracing::warn!("publish failed: {e}");
+    }
+}
+
 impl BusHandle {
     /// Starts the runtime and opens the bus; returns when the session is open.
     pub fn start(config: BusConfig) -> Result<Self, BusError> {
+        let uplink_policy = config.uplink;
         let (cmd_tx, cmd_rx) = std::sync::mpsc::channel();
         let (tx, mut rx) = mpsc::unbounded_channel::<Out>();
         let (ready_tx, ready_rx) = std::sync::mpsc::channel::<Result<Arc<Shared>, BusError>>();
@@ -62,27 +108,39 @@ impl BusHandle {
                         }
                     };
                     let _ = ready_tx.send(Ok(bus.shared.clone()));
+                    let start = tokio::time::Instant::now();
+                    let now_s = || start.elapsed().as_secs_f64();
+                    let mut uplink = Uplink::new(uplink_policy, 0.0);
                     loop {
-                        let out = tokio::select! {
-                            m = rx.recv() => match m { Some(m) => m, None => break },
-                            _ = &mut stop_rx => break,
-                        };
-                        let r = match out {
-                            Out::Session(s) => bus.publish_session(&s).await,
-                            Out::Pose(p) => bus.publish_pose(&p).await,
-                            Out::Tile(i, b) => bus.publish_tile(i, b).await,
-                            Out::Path(p) => bus.publish_path(&p).await,
-                            Out::Status(s) => bus.publish_status(&s).await,
-                            Out::Route(r) => bus.publish_route(&r).await,
-                            Out::ClearTiles => {
-                                bus.clear_tiles();
-                                Ok(())
+                        // Everything the budget lets go now, then wait for more or for the
+                        // bucket to refill.
+                        let wait = loop {
+                            match uplink.next(now_s()) {
+                                Next::Send(out) => send_out(&bus, out).await,
+                                Next::Wait(d) => break Some(d),
+                                Next::Idle => break None,
                             }
                         };
-                        if let Err(e) = r {
-                            tracing::warn!("publish failed: {e}");
+                        let first = tokio::select! {
+                            m = rx.recv() => match m { Some(m) => m, None => break },
+                            _ = tokio::time::sleep(wait.unwrap_or_default()), if wait.is_some() => continue,
+                            _ = &mut stop_rx => break,
+                        };
+                        // Take whatever else is queued, so a burst of tiles is ordered as one.
+                        let mut next = Some(first);
+                        while let Some(m) = next {
+                            queue_out(&bus, &mut uplink, m, now_s());
+                            next = rx.try_recv().ok();
                         }
                     }
+                    let c = uplink.counters();
+                    tracing::info!(
+                        "uplink: {} messages, {} bytes, {} tile versions coalesced, at most {} tiles queued",
+                        c.messages_sent,
+                        c.bytes_sent,
+                        c.tiles_coalesced,
+                        c.max_tiles_queued
+                    );
                     let _ = bus.close().await;
                 });
             })

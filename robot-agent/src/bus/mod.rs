@@ -21,6 +21,7 @@ mod session;
 mod settings;
 pub mod tiles;
 pub mod translate;
+pub mod uplink;
 
 use std::time::Duration;
 
@@ -28,7 +29,9 @@ pub use command_in::{parse_command, validate, Command, Parsed};
 pub use common::command::CommandLimits;
 pub use handle::BusHandle;
 pub use session::RobotBus;
-pub use settings::{apply_terranav_defaults, BusConfig, ZenohMode, ZenohSettings, LEASE_MS};
+pub use settings::{
+    apply_terranav_defaults, BusConfig, BusFile, ZenohMode, ZenohSettings, LEASE_MS,
+};
 
 /// Teleop silence after which the robot must stop.
 pub const DEADMAN: Duration = Duration::from_millis(300);

@@ -11,7 +11,7 @@ use common::grid::TileIndex;
 use common::keys::{self, RobotId, Topic};
 use common::msg::{self, Path, Pose, Route, Session, Status};
 use tokio::sync::mpsc;
-use zenoh::qos::CongestionControl;
+use zenoh::qos::{CongestionControl, Priority};
 
 use super::{
     now_unix_ms, parse_command, secure, zerr, BusConfig, BusCounters, BusError, Command,
@@ -283,17 +283,30 @@ impl RobotBus {
     }
 
     async fn put(&self, topic: Topic, payload: Vec<u8>, reliable: bool) -> Result<(), BusError> {
-        let key = keys::key(&self.shared.robot, topic);
         let cc = if reliable {
             CongestionControl::Block
         } else {
             CongestionControl::Drop
         };
+        // On a congested link Zenoh's transmission queues then send pose, status and path
+        // before the map (the uplink scheduler orders what reaches them; this orders the rest).
+        let priority = if matches!(topic, Topic::Tile { .. }) {
+            Priority::DataLow
+        } else {
+            Priority::Data
+        };
+        let key = keys::key(&self.shared.robot, topic);
         self.session
             .put(key, payload)
             .congestion_control(cc)
+            .priority(priority)
             .await
             .map_err(zerr)
+    }
+
+    /// Length of the key `topic` is published on, bytes (the uplink budget counts it).
+    pub fn key_len(&self, topic: Topic) -> usize {
+        keys::key(&self.shared.robot, topic).len()
     }
 
     /// Publishes (and from now on serves) the session.
@@ -311,10 +324,21 @@ impl RobotBus {
     /// Publishes a changed tile, already encoded with `common::grid::encode_tile`, and keeps it
     /// for the tile queryable.
     pub async fn publish_tile(&self, index: TileIndex, encoded: Vec<u8>) -> Result<(), BusError> {
+        self.serve_tile(index, &encoded);
+        self.put_tile(index, encoded).await
+    }
+
+    /// Keeps a tile for the tile queryable (the newest version is served at once, even while
+    /// the uplink holds it back).
+    pub fn serve_tile(&self, index: TileIndex, encoded: &[u8]) {
         self.shared
             .lock_served()
             .tiles
-            .insert(index, encoded.clone());
+            .insert(index, encoded.to_vec());
+    }
+
+    /// Puts a tile on the wire (already served).
+    pub async fn put_tile(&self, index: TileIndex, encoded: Vec<u8>) -> Result<(), BusError> {
         self.put(
             Topic::Tile {
                 tx: index.tx,

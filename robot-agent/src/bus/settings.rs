@@ -145,6 +145,55 @@ pub struct BusConfig {
     pub limits: CommandLimits,
     /// How fresh a command must be (replays are refused).
     pub replay: ReplayWindow,
+    /// What goes up the link first, and how much of it (`[bus] uplink_budget_kbps`).
+    pub uplink: super::uplink::UplinkPolicy,
+}
+
+/// `[bus]` of `config/robot.toml`: what the robot sends over a slow link (`robot-agent run` and
+/// `sim`; the command line overrides).
+#[derive(Clone, Debug, serde::Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct BusFile {
+    /// Everything the robot publishes, kilobits per second; 0 = unlimited.
+    pub uplink_budget_kbps: f64,
+    /// A tile held back this long goes before newer ones, seconds.
+    pub uplink_max_wait_s: f64,
+}
+
+impl Default for BusFile {
+    fn default() -> Self {
+        let p = super::uplink::UplinkPolicy::default();
+        Self {
+            uplink_budget_kbps: p.budget_kbps,
+            uplink_max_wait_s: p.max_wait_s,
+        }
+    }
+}
+
+impl BusFile {
+    /// The uplink policy, `budget_kbps` overriding the file's budget; refuses a negative or
+    /// non-finite value.
+    pub fn uplink(
+        &self,
+        budget_kbps: Option<f64>,
+    ) -> Result<super::uplink::UplinkPolicy, BusError> {
+        let budget_kbps = budget_kbps.unwrap_or(self.uplink_budget_kbps);
+        if !(budget_kbps.is_finite() && budget_kbps >= 0.0) {
+            return Err(BusError::Config(format!(
+                "uplink_budget_kbps = {budget_kbps}: must be 0 (unlimited) or a positive number"
+            )));
+        }
+        if !(self.uplink_max_wait_s.is_finite() && self.uplink_max_wait_s > 0.0) {
+            return Err(BusError::Config(format!(
+                "uplink_max_wait_s = {}: must be positive",
+                self.uplink_max_wait_s
+            )));
+        }
+        Ok(super::uplink::UplinkPolicy {
+            budget_kbps,
+            max_wait_s: self.uplink_max_wait_s,
+        })
+    }
 }
 
 impl BusConfig {
@@ -155,12 +204,40 @@ impl BusConfig {
             zenoh: ZenohSettings::connect_to(DEFAULT_STATION_ENDPOINT),
             limits: CommandLimits::default(),
             replay: ReplayWindow::default(),
+            uplink: super::uplink::UplinkPolicy::default(),
         }
     }
 }
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_uplink_budget_comes_from_the_file_unless_the_command_line_says_otherwise() {
+        let file = BusFile {
+            uplink_budget_kbps: 128.0,
+            ..BusFile::default()
+        };
+        assert_eq!(file.uplink(None).unwrap().budget_kbps, 128.0);
+        assert_eq!(file.uplink(Some(64.0)).unwrap().budget_kbps, 64.0);
+        assert_eq!(
+            file.uplink(Some(0.0)).unwrap().budget_kbps,
+            0.0,
+            "unlimited"
+        );
+        for bad in [-1.0, f64::NAN, f64::INFINITY] {
+            let e = file.uplink(Some(bad)).unwrap_err().to_string();
+            assert!(e.contains("uplink_budget_kbps"), "{e}");
+        }
+        let e = BusFile {
+            uplink_max_wait_s: 0.0,
+            ..BusFile::default()
+        }
+        .uplink(None)
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("uplink_max_wait_s"), "{e}");
+    }
 
     #[test]
     fn plain_endpoints_off_loopback_are_refused() {

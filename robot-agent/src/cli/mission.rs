@@ -43,6 +43,10 @@ pub struct MissionArgs {
     /// Zenoh json5 config file (live mode).
     #[arg(long, value_name = "FILE")]
     pub zenoh: Option<PathBuf>,
+    /// Live mode: budget for everything the robot publishes, kilobits per second (0 =
+    /// unlimited); default `[bus] uplink_budget_kbps` of robot.toml.
+    #[arg(long, value_name = "KBPS")]
+    pub uplink_budget_kbps: Option<f64>,
     /// Live mode: stop when the process that started this one exits (how `operator-station
     /// demo` keeps its simulated robots from outliving it when it is killed outright).
     #[arg(long)]
@@ -207,6 +211,10 @@ pub fn run_live(
 /// default a loopback port, or none with --pki.
 fn bus_config(args: &MissionArgs, listen: &[String], robot: &RobotId) -> anyhow::Result<BusConfig> {
     let mut bus = BusConfig::new(robot.clone());
+    let dir = args.config_dir.clone().unwrap_or_else(default_config_dir);
+    bus.uplink = crate::config::load_run_file(&dir.join("robot.toml"))?
+        .bus
+        .uplink(args.uplink_budget_kbps)?;
     let tls = match &args.pki {
         Some(dir) => Some(secure::robot_files(dir, robot)?),
         None => None,

@@ -34,6 +34,10 @@ pub struct RunArgs {
     /// Zenoh json5 config file for the station session.
     #[arg(long, value_name = "FILE")]
     pub zenoh: Option<PathBuf>,
+    /// Budget for everything the robot publishes, kilobits per second (0 = unlimited); default
+    /// `[bus] uplink_budget_kbps`.
+    #[arg(long, value_name = "KBPS")]
+    pub uplink_budget_kbps: Option<f64>,
     /// The robot's certificates: the folder `operator-station pki issue --robot ID` wrote
     /// (PKI/robots/ID/, copied to the robot), or the fleet's PKI folder. The station link is then
     /// TLS with mutual authentication under the robot's access rules (default
@@ -239,6 +243,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         ..ZenohSettings::default()
     };
     let mut bus = BusConfig::new(robot.clone());
+    bus.uplink = run_file.bus.uplink(args.uplink_budget_kbps)?;
     if args.zenoh.is_some() || !args.connect.is_empty() || tls.is_some() {
         bus.zenoh = station.clone();
     }

@@ -1,4 +1,4 @@
-//! The `[io]` and `[runtime]` sections of `config/robot.toml`: where a real robot's sensors come
+//! The `[io]`, `[runtime]` and `[bus]` sections of `config/robot.toml`: where a real robot's sensors come
 //! from and its base commands go, and the runtime's stamp and silence limits. Read by
 //! `crate::config` (the one reader of the robot file); every key can be overridden on the
 //! `robot-agent run` command line.
@@ -139,4 +139,6 @@ pub struct RunFile {
     pub io: IoConfig,
     /// `[runtime]`.
     pub runtime: RuntimeConfig,
+    /// `[bus]`.
+    pub bus: crate::bus::BusFile,
 }
