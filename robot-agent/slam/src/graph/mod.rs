@@ -80,6 +80,13 @@ pub struct GraphConfig {
     pub loop_cauchy_sigmas: f64,
     /// Solver: most LM iterations.
     pub max_iterations: usize,
+    /// Keyframe clouds are voxel-thinned to this, metres (the agent's keyframes).
+    pub keyframe_voxel_m: f64,
+    /// A fix goes on a keyframe made within this of it, seconds (the agent's GNSS factors).
+    pub gnss_max_age_s: f64,
+    /// A GNSS factor this long after the previous one is RTK back after an outage: the graph is
+    /// optimised then, seconds.
+    pub outage_min_s: f64,
 }
 
 impl Default for GraphConfig {
@@ -109,6 +116,9 @@ impl Default for GraphConfig {
             loop_sigma_rot_rad: 0.01,
             loop_cauchy_sigmas: 3.0,
             max_iterations: 50,
+            keyframe_voxel_m: 0.3,
+            gnss_max_age_s: 0.2,
+            outage_min_s: 5.0,
         }
     }
 }
