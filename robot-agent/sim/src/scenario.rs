@@ -30,6 +30,7 @@
 //! [[box]]    rect, height_m
 //! [[car]]    x_m, y_m, yaw_deg  (length_m 4.5, width_m 1.8, height_m 1.5 by default)
 //! [[walker]] points, speed_mps = 1.3, mode = "loop" | "ping_pong", phase_m = 0
+//! [[gnss_denied]] points = [[x, y], ...], fix = "none" | "single"   # RTK off inside (ENU)
 //! ```
 //!
 //! Ground features are baked into the height field in this order: steps, platforms, stairs,
@@ -412,6 +413,35 @@ pub struct WalkerSpec {
     pub height_m: f64,
 }
 
+/// What the GNSS receiver still produces inside a `gnss_denied` area.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum DeniedFix {
+    /// No position at all (GGA quality 0).
+    #[default]
+    None,
+    /// An autonomous single-point fix without RTK (GGA quality 1, metres of error).
+    Single,
+}
+
+/// An area where RTK is unavailable (trees, buildings): a simple polygon in the map frame.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GnssDeniedSpec {
+    /// Corners (x, y), metres (ENU of the datum).
+    pub points: Vec<[f64; 2]>,
+    /// What the receiver produces inside.
+    #[serde(default)]
+    pub fix: DeniedFix,
+}
+
+impl GnssDeniedSpec {
+    /// The corners as (x, y) tuples.
+    pub fn polygon(&self) -> Vec<(f64, f64)> {
+        self.points.iter().map(|p| (p[0], p[1])).collect()
+    }
+}
+
 fn default_walk_speed() -> f64 {
     1.3
 }
@@ -481,6 +511,9 @@ pub struct Scenario {
     /// Walkers.
     #[serde(default)]
     pub walker: Vec<WalkerSpec>,
+    /// Areas without RTK.
+    #[serde(default)]
+    pub gnss_denied: Vec<GnssDeniedSpec>,
 }
 
 impl Scenario {
@@ -591,6 +624,11 @@ impl Scenario {
                 if !finite_pos(r.speed_mps) {
                     return Err(bad(format!("{name}.speed_mps"), "must be > 0"));
                 }
+            }
+        }
+        for (i, g) in self.gnss_denied.iter().enumerate() {
+            if let Err(e) = common::zone::check_polygon(&g.polygon()) {
+                return Err(bad(format!("gnss_denied[{i}].points"), &e.to_string()));
             }
         }
         for (i, s) in self.start.iter().enumerate() {

@@ -653,6 +653,18 @@ pub enum GnssFix {
     Fixed,
 }
 
+impl GnssFix {
+    /// Quality order: None < Single < Float < Fixed.
+    fn rank(self) -> u8 {
+        match self {
+            GnssFix::None => 0,
+            GnssFix::Single => 1,
+            GnssFix::Float => 2,
+            GnssFix::Fixed => 3,
+        }
+    }
+}
+
 /// Dual-antenna GNSS receiver emitting GGA + `$PTNL,AVR`.
 pub(crate) struct Gnss {
     cfg: GnssConfig,
@@ -663,6 +675,8 @@ pub(crate) struct Gnss {
     bias: Vector3<f64>,
     last_loss_t_s: f64,
     pub(crate) fix: GnssFix,
+    /// Scenario areas without RTK: polygon (map frame) and the best fix inside.
+    denied: Vec<(Vec<(f64, f64)>, GnssFix)>,
 }
 
 impl Gnss {
@@ -681,7 +695,34 @@ impl Gnss {
             bias: Vector3::zeros(),
             last_loss_t_s: cfg.initial_float_s - cfg.float_after_loss_s,
             fix: GnssFix::Fixed,
+            denied: Vec::new(),
         }
+    }
+
+    /// Adds the scenario's `gnss_denied` areas: inside one the fix is at best its `fix`.
+    pub(crate) fn with_denied_areas(mut self, areas: &[crate::scenario::GnssDeniedSpec]) -> Self {
+        self.denied = areas
+            .iter()
+            .map(|a| {
+                let fix = match a.fix {
+                    crate::scenario::DeniedFix::None => GnssFix::None,
+                    crate::scenario::DeniedFix::Single => GnssFix::Single,
+                };
+                (a.polygon(), fix)
+            })
+            .collect();
+        self
+    }
+
+    /// The best fix the denied areas allow at (x, y) (`Fixed` outside all of them).
+    fn denied_cap(&self, x: f64, y: f64) -> GnssFix {
+        let mut cap = GnssFix::Fixed;
+        for (poly, fix) in &self.denied {
+            if common::zone::contains(poly, (x, y)) && fix.rank() < cap.rank() {
+                cap = *fix;
+            }
+        }
+        cap
     }
 
     /// Distance from (x, y) to the nearest structure tall enough to shade the sky.
@@ -735,9 +776,10 @@ impl Gnss {
         let p1 = base * Point3::from(self.primary);
         let p2 = base * Point3::from(self.secondary);
         let d = Self::sky_block_distance(world, p1.x, p1.y);
-        let fix = if d < self.cfg.no_fix_distance_m {
+        let cap = self.denied_cap(p1.x, p1.y);
+        let fix = if d < self.cfg.no_fix_distance_m || cap == GnssFix::None {
             GnssFix::None
-        } else if d < self.cfg.rtk_loss_distance_m {
+        } else if d < self.cfg.rtk_loss_distance_m || cap == GnssFix::Single {
             GnssFix::Single
         } else if t_s - self.last_loss_t_s < self.cfg.float_after_loss_s {
             GnssFix::Float

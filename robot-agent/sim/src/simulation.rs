@@ -128,7 +128,8 @@ impl Simulation {
             datum,
             cfg.robot.gnss.primary_xyz_m,
             cfg.robot.gnss.secondary_xyz_m,
-        );
+        )
+        .with_denied_areas(&scenario.gnss_denied);
         // One independent stream per sensor: switching one sensor off leaves the others' noise as it was.
         let rng =
             |k: u64| SmallRng::seed_from_u64(cfg.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ k);
@@ -705,6 +706,68 @@ yaw_deg = 0.0
             qualities.iter().any(|&q| q == 1 || q == 0),
             "RTK lost near the wall: {qualities:?}"
         );
+    }
+
+    /// GGA qualities along a 12 s drive east at 1 m/s, with the primary antenna's true x.
+    fn gga_along_a_drive_east(sc: &Scenario) -> Vec<(f64, u8)> {
+        // Only the receiver matters here: the scanners off keep the test to a fraction of a second.
+        let mut c = cfg(2);
+        c.lidar.enabled = false;
+        c.depth.enabled = false;
+        let mut sim = Simulation::new(sc, c);
+        let primary = Point3::from(Vector3::from(sim.robot().gnss.primary_xyz_m));
+        let mut out = Vec::new();
+        for _ in 0..600 {
+            let step = sim.step(0.02, 1.0, 0.0);
+            let x = (sim.truth_pose() * primary).x;
+            for g in &step.gnss {
+                if let Sentence::Gga(gga) = parse_sentence(&g.text).unwrap() {
+                    out.push((x, gga.quality));
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn gnss_denied_areas_switch_rtk_off_inside() {
+        // A 3 m wide strip across the drive, 3..6 m east of the start.
+        let area =
+            "[[gnss_denied]]\npoints = [[3.0, -10.0], [6.0, -10.0], [6.0, 10.0], [3.0, 10.0]]\n";
+        let none = gga_along_a_drive_east(&scenario(area));
+        let inside = |x: f64| (3.05..5.95).contains(&x);
+        assert!(none.iter().filter(|(x, _)| inside(*x)).count() >= 20);
+        for (x, q) in &none {
+            if inside(*x) {
+                assert_eq!(*q, 0, "fix inside the denied area at x = {x}");
+            } else if *x < 2.95 {
+                assert_eq!(*q, 4, "RTK before the area at x = {x}");
+            } else if *x > 6.05 {
+                // RTK comes back through float, as after any loss.
+                assert!(*q == 5 || *q == 4, "x = {x}: quality {q}");
+            }
+        }
+        assert!(none.iter().any(|(x, q)| *x > 6.05 && *q == 5));
+        // The degraded variant: a single-point fix, no RTK.
+        let single = gga_along_a_drive_east(&scenario(&format!("{area}fix = \"single\"\n")));
+        assert!(single
+            .iter()
+            .filter(|(x, _)| inside(*x))
+            .all(|(_, q)| *q == 1));
+        // Without the area the same drive keeps RTK fixed.
+        assert!(gga_along_a_drive_east(&scenario(""))
+            .iter()
+            .all(|(_, q)| *q == 4));
+        // A degenerate polygon is refused with its field named.
+        let err = Scenario::from_toml_str(
+            &format!(
+                "name = \"x\"\n[datum]\nlat_deg = 48.0\nlon_deg = 16.0\nh_m = 0.0\n[extent]\nx_min_m = -1.0\nx_max_m = 1.0\ny_min_m = -1.0\ny_max_m = 1.0\n\
+                 [[gnss_denied]]\npoints = [[0.0, 0.0], [1.0, 0.0]]\n"
+            ),
+            "t",
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("gnss_denied[0].points"), "{err}");
     }
 
     #[test]

@@ -19,6 +19,8 @@ pub struct Config {
     pub dynamic: DynamicConfig,
     /// The frame's roll and pitch from the IMU's accelerometer.
     pub gravity: crate::gravity::GravityConfig,
+    /// The pose graph behind the odometry (used by the agent, not by [`crate::Slam`]).
+    pub graph: crate::graph::GraphConfig,
 }
 
 /// Where the LiDAR sits on the robot.

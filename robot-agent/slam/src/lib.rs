@@ -9,17 +9,21 @@
 //! - [`map`]: the point map, its spatial index and the dynamic-point ray model.
 //! - [`pipeline`]: the per-scan step ([`Slam::process`]).
 //! - [`gravity`]: the frame's roll and pitch from an accelerometer (gravity against the estimate).
+//! - [`graph`]: the pose graph behind the odometry (keyframes, GNSS and loop factors, LM).
+//! - [`place`]: Scan Context place recognition for loop candidates.
 //! - [`eval`]: ATE / RPE / drift against ground truth, map-point provenance.
 #![deny(missing_docs)]
 
 pub mod config;
 pub mod eval;
 pub mod filters;
+pub mod graph;
 pub mod gravity;
 pub mod icp;
 pub mod index;
 pub mod map;
 pub mod pipeline;
+pub mod place;
 pub mod se3;
 
 pub use config::Config;

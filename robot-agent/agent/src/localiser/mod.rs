@@ -14,6 +14,7 @@
 pub mod anchor;
 pub mod fusion;
 pub mod gnss;
+pub mod graph;
 pub mod tilt;
 
 use crate::config::AgentConfig;
@@ -171,6 +172,8 @@ pub struct Localiser {
     gnss_rejected: u32,
     imu_rejected: u64,
     scans: u32,
+    /// The pose graph, when `[graph] enabled` in slam.toml.
+    graph: Option<graph::GraphLocaliser>,
 }
 
 impl Localiser {
@@ -206,6 +209,7 @@ impl Localiser {
             gnss_rejected: 0,
             imu_rejected: 0,
             scans: 0,
+            graph: graph::GraphLocaliser::new(&cfg.slam.graph),
         }
     }
 
@@ -282,6 +286,7 @@ impl Localiser {
     /// towards where GNSS puts the robot ([`fusion::correction`]).
     fn fuse_gnss(&mut self, t_s: f64) -> Option<FrameShift> {
         let fix = self.gnss.fix(t_s)?;
+        self.feed_graph_fix(t_s, &fix);
         // Once per fix (the sentence that brought it), RTK fixed only.
         if fix.t_s != t_s
             || fix.quality != common::geo::nmea::QUALITY_RTK_FIXED
@@ -310,6 +315,28 @@ impl Localiser {
         };
         self.move_frame(&delta);
         Some(delta)
+    }
+
+    /// Hands a fresh RTK fixed fix to the pose graph, as base_link's position in the map.
+    fn feed_graph_fix(&mut self, t_s: f64, fix: &Fix) {
+        if fix.t_s != t_s || fix.quality != common::geo::nmea::QUALITY_RTK_FIXED {
+            return;
+        }
+        let (Some(g), Some(est), Some(local)) = (
+            self.graph.as_mut(),
+            self.at_scan,
+            self.anchor.as_ref().and_then(|a| a.local.as_ref()),
+        ) else {
+            return;
+        };
+        let [ax, ay, az] = self.antenna_xyz_m;
+        let base = local.lla_to_enu(&fix.lla) - est.iso.rotation * Vector3::new(ax, ay, az);
+        g.on_fix(t_s, base);
+    }
+
+    /// The pose graph's counters, when it runs.
+    pub fn graph_stats(&self) -> Option<graph::GraphStats> {
+        self.graph.as_ref().map(|g| g.stats())
     }
 
     /// Moves the map frame's anchoring by `delta`: the SLAM anchor, the odometry frame, the
@@ -388,6 +415,25 @@ impl Localiser {
             shifts.push(s);
             map_from_slam = anchored(&self.anchor);
             pose = PoseMap::from_iso(map_from_slam * out.pose_map_base);
+        }
+        if let Some(g) = self.graph.as_mut() {
+            let points = out.deskewed.as_deref().unwrap_or(&scan.points);
+            let step = g.on_scan(
+                scan.stamp_s,
+                &out.pose_map_base,
+                points,
+                &self.base_from_lidar,
+                &map_from_slam,
+            );
+            if let Some(m) = step.map_from_slam {
+                // The graph's correction at this keyframe becomes the anchoring: the frame moves
+                // by the difference, and what follows frame shifts follows it.
+                let delta = m * map_from_slam.inverse();
+                self.move_frame(&delta);
+                shifts.push(delta);
+                map_from_slam = anchored(&self.anchor);
+                pose = PoseMap::from_iso(map_from_slam * out.pose_map_base);
+            }
         }
         self.at_scan = Some(pose);
         self.map_from_odom = out.pose_map_odom.map(|m| map_from_slam * m);

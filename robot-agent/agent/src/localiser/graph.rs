@@ -1,0 +1,225 @@
+//! The pose graph behind SLAM, as the localiser runs it (`[graph]` in `config/slam.toml`,
+//! docs/algorithms.md §3.6).
+//!
+//! Keyframes are the SLAM poses carried into the map frame by the anchoring the graph started
+//! with (`map<-slam` at its first keyframe), so the graph's world is the map frame and RTK fixes
+//! enter it as they are (ENU at the datum). Each keyframe keeps its sweep (base frame, voxel
+//! thinned, with normals) for loop verification. The graph is optimised when a loop closes or
+//! when RTK comes back after an outage; the localiser then moves the frame to the graph's
+//! correction at the newest keyframe, and the terrain map's recent heights follow that shift
+//! like any other frame correction.
+
+use nalgebra::{Isometry3, Point3, Vector3};
+use rand::SeedableRng;
+use sensing::Point;
+use slam::config::FilterConfig;
+use slam::graph::{GraphConfig, KeyframeSelector, PoseGraph};
+use std::sync::Arc;
+
+/// What the graph did with one sweep.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GraphStep {
+    /// A keyframe was made from the sweep.
+    pub keyframe: bool,
+    /// A loop closed at it.
+    pub loop_closed: bool,
+    /// The new `map<-slam` after an optimisation, when one ran.
+    pub map_from_slam: Option<Isometry3<f64>>,
+}
+
+/// Counters for the status and the tests.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct GraphStats {
+    /// Keyframes made.
+    pub keyframes: usize,
+    /// GNSS factors added.
+    pub gnss_factors: usize,
+    /// Loops accepted.
+    pub loops: usize,
+    /// Optimisations run.
+    pub optimisations: usize,
+}
+
+/// The graph and what feeds it.
+pub struct GraphLocaliser {
+    cfg: GraphConfig,
+    graph: PoseGraph,
+    selector: KeyframeSelector,
+    /// `map<-slam` when the first keyframe was made: the graph's world is that map frame.
+    map_from_slam0: Option<Isometry3<f64>>,
+    /// The newest trusted fix not yet on a keyframe: (time, base_link position in the map).
+    pending_fix: Option<(f64, Vector3<f64>)>,
+    /// Time of the fix behind the newest GNSS factor.
+    last_factor_fix_s: Option<f64>,
+    stats: GraphStats,
+}
+
+impl GraphLocaliser {
+    /// A graph when `[graph] enabled`, else `None` (the localiser then runs as before).
+    pub fn new(cfg: &GraphConfig) -> Option<Self> {
+        cfg.enabled.then(|| Self {
+            cfg: cfg.clone(),
+            graph: PoseGraph::new(cfg.clone()),
+            selector: KeyframeSelector::default(),
+            map_from_slam0: None,
+            pending_fix: None,
+            last_factor_fix_s: None,
+            stats: GraphStats::default(),
+        })
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> GraphStats {
+        self.stats
+    }
+
+    /// The graph (evaluation).
+    pub fn graph(&self) -> &PoseGraph {
+        &self.graph
+    }
+
+    /// A trusted (RTK fixed) fix: `base_m` is base_link's position in the map frame (the
+    /// antenna's lever arm already removed). It goes on the next keyframe made within
+    /// `gnss_max_age_s` of it.
+    pub fn on_fix(&mut self, t_s: f64, base_m: Vector3<f64>) {
+        if t_s.is_finite() && base_m.iter().all(|v| v.is_finite()) {
+            self.pending_fix = Some((t_s, base_m));
+        }
+    }
+
+    /// One localised sweep: `slam_pose` = `slam<-base_link`, `points` in the lidar frame,
+    /// `map_from_slam` the anchoring now.
+    pub fn on_scan(
+        &mut self,
+        stamp_s: f64,
+        slam_pose: &Isometry3<f64>,
+        points: &[Point],
+        base_from_lidar: &Isometry3<f64>,
+        map_from_slam: &Isometry3<f64>,
+    ) -> GraphStep {
+        let mut step = GraphStep::default();
+        if !self.selector.accept(
+            slam_pose,
+            self.cfg.keyframe_min_travel_m,
+            self.cfg.keyframe_min_rotation_rad,
+        ) {
+            return step;
+        }
+        step.keyframe = true;
+        let map_from_slam0 = *self.map_from_slam0.get_or_insert(*map_from_slam);
+        let cloud = keyframe_cloud(points, base_from_lidar, &self.cfg);
+        let kf = self
+            .graph
+            .add_keyframe(stamp_s, map_from_slam0 * slam_pose, cloud);
+        self.stats.keyframes += 1;
+        let mut optimise = false;
+        if let Some((t_fix, p)) = self.pending_fix {
+            if (stamp_s - t_fix).abs() <= self.cfg.gnss_max_age_s {
+                // RTK back after an outage: the drifted stretch is pulled back by the graph.
+                optimise |= self
+                    .last_factor_fix_s
+                    .is_some_and(|t| t_fix - t >= self.cfg.outage_min_s);
+                self.graph.add_gnss(
+                    kf,
+                    p,
+                    self.cfg.gnss_min_sigma_m,
+                    2.0 * self.cfg.gnss_min_sigma_m,
+                );
+                self.last_factor_fix_s = Some(t_fix);
+                self.stats.gnss_factors += 1;
+                self.pending_fix = None;
+            }
+        }
+        if self.graph.detect_loop(kf).is_ok() {
+            self.stats.loops += 1;
+            step.loop_closed = true;
+            optimise = true;
+        }
+        if optimise {
+            self.graph.optimise();
+            self.stats.optimisations += 1;
+            step.map_from_slam = self.graph.correction(kf).map(|c| c * map_from_slam0);
+        }
+        step
+    }
+}
+
+/// The sweep in base_link, within the descriptor's range, voxel-thinned, with normals.
+fn keyframe_cloud(
+    points: &[Point],
+    base_from_lidar: &Isometry3<f64>,
+    cfg: &GraphConfig,
+) -> Option<Arc<slam::filters::OrientedCloud>> {
+    let tf = base_from_lidar.cast::<f32>();
+    let max_r = cfg.place_max_range_m as f32;
+    let base: Vec<[f32; 3]> = points
+        .iter()
+        .filter(|p| p.x.is_finite() && p.y.is_finite() && p.z.is_finite())
+        .map(|p| tf * Point3::new(p.x, p.y, p.z))
+        .filter(|q| q.coords.xy().norm() < max_r)
+        .map(|q| [q.x, q.y, q.z])
+        .collect();
+    let thinned = slam::filters::voxel_downsample(&base, cfg.keyframe_voxel_m as f32);
+    if thinned.len() < 100 {
+        return None;
+    }
+    let fcfg = FilterConfig {
+        max_density_per_m3: 0.0,
+        normal_max_dist_m: 3.0 * cfg.keyframe_voxel_m,
+        ..FilterConfig::default()
+    };
+    let sensor = base_from_lidar.translation.vector.cast::<f32>();
+    Some(Arc::new(slam::filters::normals_and_density(
+        thinned,
+        [sensor.x, sensor.y, sensor.z],
+        &fcfg,
+        &mut rand::rngs::StdRng::seed_from_u64(1),
+    )))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use slam::se3;
+
+    #[test]
+    fn rtk_returning_after_an_outage_moves_the_frame_back_smoothly() {
+        // A straight 200 m drive east, a sweep every metre, SLAM drifting 0.05 deg of yaw per
+        // metre; RTK fixed (the truth) except between 60 m and 140 m.
+        let cfg = GraphConfig {
+            enabled: true,
+            ..GraphConfig::default()
+        };
+        let mut g = GraphLocaliser::new(&cfg).expect("enabled");
+        let anchor = Isometry3::identity();
+        let mut slam_pose = Isometry3::identity();
+        let step = se3::from_xyz_rpy([1.0, 0.0, 0.0], [0.0, 0.0, 0.05f64.to_radians()]);
+        let mut corrected = None;
+        for i in 0..=200 {
+            let t = i as f64;
+            let x = i as f64;
+            if !(60..140).contains(&i) {
+                g.on_fix(t, Vector3::new(x, 0.0, 0.0));
+            }
+            let s = g.on_scan(t, &slam_pose, &[], &Isometry3::identity(), &anchor);
+            if let Some(m) = s.map_from_slam {
+                assert!(corrected.is_none(), "one optimisation, at the return");
+                assert!((140..=142).contains(&i), "optimised at {i}");
+                corrected = Some((i, m));
+            }
+            slam_pose *= step;
+        }
+        let (i, m) = corrected.expect("optimised when RTK came back");
+        // The drifted pose at the return, moved by the new anchoring, is back on the truth.
+        let drifted = (0..i).fold(Isometry3::identity(), |p, _| p * step);
+        let before = (drifted.translation.vector - Vector3::new(i as f64, 0.0, 0.0)).norm();
+        let after = ((m * drifted).translation.vector - Vector3::new(i as f64, 0.0, 0.0)).norm();
+        assert!(before > 3.0, "drift too small to test: {before}");
+        assert!(after < 0.1, "{before} m -> {after} m");
+        let st = g.stats();
+        assert_eq!(st.optimisations, 1);
+        assert_eq!(st.loops, 0);
+        // A keyframe every 3 m (two 1 m steps fall a hair short of the 2 m), RTK on 120 m of 200.
+        assert!(st.keyframes >= 60 && st.gnss_factors >= 30, "{st:?}");
+    }
+}

@@ -1,0 +1,406 @@
+//! A pose graph behind the scan-to-map odometry (docs/algorithms.md §3.6).
+//!
+//! Keyframes carry the odometry's pose, the optimised pose, a local cloud and its place
+//! descriptor. Factors: odometry between consecutive keyframes (information shrinking with the
+//! distance driven), GNSS positions (only fixes the caller trusts), verified loop closures
+//! (Cauchy kernel) and a prior on the first keyframe that fixes the gauge. [`PoseGraph::optimise`]
+//! runs Levenberg-Marquardt with a sparse Cholesky solve; the correction `pose * odom_pose^-1`
+//! it leaves on each keyframe is spread along the chain by the odometry factors instead of
+//! jumping at the keyframe where the loop closed or the fix came back.
+//!
+//! Pure: no clock, no I/O; stamps are inputs. The graph's world frame is the frame the caller
+//! gives odometry poses and GNSS positions in.
+
+pub mod factors;
+pub mod keyframes;
+pub mod solve;
+
+use crate::config::IcpConfig;
+use crate::filters::OrientedCloud;
+use crate::icp::{self, IcpStatus};
+use crate::index::KdIndex;
+use crate::place::{PlaceDb, ScanContext};
+use factors::{information, BetweenKind, Factor};
+pub use keyframes::{Keyframe, KeyframeSelector};
+use nalgebra::{Isometry3, Matrix3, UnitQuaternion, Vector3};
+use serde::Deserialize;
+pub use solve::{SolveOptions, SolveReport};
+use std::sync::Arc;
+
+/// `[graph]` of config/slam.toml.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct GraphConfig {
+    /// Run the pose graph (the agent feeds it and applies its corrections).
+    pub enabled: bool,
+    /// A keyframe after this much travel since the last, metres...
+    pub keyframe_min_travel_m: f64,
+    /// ...or this much turn, radians.
+    pub keyframe_min_rotation_rad: f64,
+    /// Odometry factor: translation sigma at zero distance, metres...
+    pub odom_sigma_trans_min_m: f64,
+    /// ...growing by this per metre driven between the two keyframes.
+    pub odom_sigma_trans_per_m: f64,
+    /// Odometry factor: rotation sigma at zero distance, radians...
+    pub odom_sigma_rot_min_rad: f64,
+    /// ...growing by this per metre driven.
+    pub odom_sigma_rot_per_m_rad: f64,
+    /// Gauge prior on the first keyframe: translation sigma, metres.
+    pub anchor_sigma_m: f64,
+    /// Gauge prior on the first keyframe: rotation sigma, radians.
+    pub anchor_sigma_rad: f64,
+    /// GNSS factors never trust a fix more than this, metres.
+    pub gnss_min_sigma_m: f64,
+    /// Scan Context: range of the descriptor, metres.
+    pub place_max_range_m: f64,
+    /// Scan Context: points lower than this below the sensor are ignored, metres.
+    pub place_z_offset_m: f64,
+    /// Descriptors with fewer occupied cells than this share say nothing (open field), 0..1.
+    pub place_min_occupancy: f64,
+    /// Ring-key neighbours compared in full.
+    pub place_candidates: usize,
+    /// Largest Scan Context distance of a candidate, 0..1.
+    pub place_max_distance: f64,
+    /// Keyframes younger than this are not loop candidates, seconds.
+    pub loop_exclude_recent_s: f64,
+    /// Verification ICP: matching distance of the coarse pass, metres (the fine pass uses a
+    /// third of it).
+    pub loop_icp_max_match_dist_m: f64,
+    /// Verification ICP: the two keyframes may be at most this far apart, metres.
+    pub loop_max_offset_m: f64,
+    /// A loop is accepted when the ICP explains at least this share of the reading...
+    pub loop_min_inlier_ratio: f64,
+    /// ...with a weighted RMS point-to-plane residual at most this, metres.
+    pub loop_max_rms_m: f64,
+    /// Loop factor translation sigma, metres.
+    pub loop_sigma_trans_m: f64,
+    /// Loop factor rotation sigma, radians.
+    pub loop_sigma_rot_rad: f64,
+    /// Cauchy kernel scale on a loop factor's Mahalanobis distance (sigmas).
+    pub loop_cauchy_sigmas: f64,
+    /// Solver: most LM iterations.
+    pub max_iterations: usize,
+    /// Keyframe clouds are voxel-thinned to this, metres (the agent's keyframes).
+    pub keyframe_voxel_m: f64,
+    /// A fix goes on a keyframe made within this of it, seconds (the agent's GNSS factors).
+    pub gnss_max_age_s: f64,
+    /// A GNSS factor this long after the previous one is RTK back after an outage: the graph is
+    /// optimised then, seconds.
+    pub outage_min_s: f64,
+}
+
+impl Default for GraphConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            keyframe_min_travel_m: 2.0,
+            keyframe_min_rotation_rad: 0.5,
+            odom_sigma_trans_min_m: 0.01,
+            odom_sigma_trans_per_m: 0.01,
+            odom_sigma_rot_min_rad: 0.001,
+            odom_sigma_rot_per_m_rad: 0.0005,
+            anchor_sigma_m: 0.01,
+            anchor_sigma_rad: 0.001,
+            gnss_min_sigma_m: 0.02,
+            place_max_range_m: 60.0,
+            place_z_offset_m: 2.0,
+            place_min_occupancy: 0.05,
+            place_candidates: 10,
+            place_max_distance: 0.3,
+            loop_exclude_recent_s: 30.0,
+            loop_icp_max_match_dist_m: 3.0,
+            loop_max_offset_m: 8.0,
+            loop_min_inlier_ratio: 0.5,
+            loop_max_rms_m: 0.15,
+            loop_sigma_trans_m: 0.1,
+            loop_sigma_rot_rad: 0.01,
+            loop_cauchy_sigmas: 3.0,
+            max_iterations: 50,
+            keyframe_voxel_m: 0.3,
+            gnss_max_age_s: 0.2,
+            outage_min_s: 5.0,
+        }
+    }
+}
+
+/// Why a loop candidate was not added.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub enum LoopRejection {
+    /// The keyframe has no cloud or descriptor, or the descriptor is nearly empty.
+    NoDescriptor,
+    /// No stored place was close enough.
+    NoCandidate,
+    /// The verification ICP failed (status).
+    IcpFailed(IcpStatus),
+    /// It converged, but explains too little of the scan or fits too loosely.
+    PoorFit {
+        /// Share of the reading explained.
+        inlier_ratio: f64,
+        /// Weighted RMS residual, metres.
+        rms_m: f64,
+    },
+}
+
+/// An accepted loop: the factor's ends, the measured `from<-to` and the verification numbers.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LoopClosure {
+    /// The earlier keyframe (the revisited place).
+    pub from: usize,
+    /// The current keyframe.
+    pub to: usize,
+    /// Measured `from<-to`.
+    pub measured: Isometry3<f64>,
+    /// Scan Context distance.
+    pub descriptor_distance: f64,
+    /// ICP inlier share.
+    pub inlier_ratio: f64,
+    /// ICP weighted RMS residual, metres.
+    pub rms_m: f64,
+}
+
+/// Verifies a loop candidate: registers `reading` (the current keyframe's cloud, its frame)
+/// against `target` (the candidate's cloud) from `init` = `target<-reading`, coarse then fine,
+/// and gates on the fit. Returns the measured `target<-reading` and (inlier share, RMS).
+pub fn verify_loop(
+    reading: &OrientedCloud,
+    target: &OrientedCloud,
+    init: &Isometry3<f64>,
+    cfg: &GraphConfig,
+) -> Result<(Isometry3<f64>, f64, f64), LoopRejection> {
+    let index = KdIndex::build(&target.points);
+    let mut icp_cfg = IcpConfig {
+        max_match_dist_m: cfg.loop_icp_max_match_dist_m,
+        max_iterations: 60,
+        max_correction_trans_m: cfg.loop_max_offset_m,
+        max_correction_rot_rad: 0.6,
+        min_inlier_ratio: 0.0,
+        ..IcpConfig::default()
+    };
+    let coarse = icp::register(reading, target, &index, init, &icp_cfg);
+    if !coarse.status.is_ok() {
+        return Err(LoopRejection::IcpFailed(coarse.status));
+    }
+    icp_cfg.max_match_dist_m = cfg.loop_icp_max_match_dist_m / 3.0;
+    let fine = icp::register(reading, target, &index, &coarse.pose, &icp_cfg);
+    if !fine.status.is_ok() {
+        return Err(LoopRejection::IcpFailed(fine.status));
+    }
+    if fine.inlier_ratio < cfg.loop_min_inlier_ratio || fine.residual_rms_m > cfg.loop_max_rms_m {
+        return Err(LoopRejection::PoorFit {
+            inlier_ratio: fine.inlier_ratio,
+            rms_m: fine.residual_rms_m,
+        });
+    }
+    Ok((fine.pose, fine.inlier_ratio, fine.residual_rms_m))
+}
+
+/// The graph: keyframes, factors and the place database.
+#[derive(Debug)]
+pub struct PoseGraph {
+    cfg: GraphConfig,
+    keyframes: Vec<Keyframe>,
+    factors: Vec<Factor>,
+    places: PlaceDb,
+}
+
+impl PoseGraph {
+    /// An empty graph.
+    pub fn new(cfg: GraphConfig) -> Self {
+        Self {
+            cfg,
+            keyframes: Vec::new(),
+            factors: Vec::new(),
+            places: PlaceDb::default(),
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &GraphConfig {
+        &self.cfg
+    }
+
+    /// All keyframes, oldest first.
+    pub fn keyframes(&self) -> &[Keyframe] {
+        &self.keyframes
+    }
+
+    /// All factors.
+    pub fn factors(&self) -> &[Factor] {
+        &self.factors
+    }
+
+    /// Adds a keyframe at the odometry pose `odom_pose` with its local `cloud` (keyframe frame)
+    /// and returns its index. Its optimised pose starts as the previous keyframe's corrected
+    /// pose composed with the odometry step; an odometry factor joins the two.
+    pub fn add_keyframe(
+        &mut self,
+        stamp_s: f64,
+        odom_pose: Isometry3<f64>,
+        cloud: Option<Arc<OrientedCloud>>,
+    ) -> usize {
+        let idx = self.keyframes.len();
+        let pose = match self.keyframes.last() {
+            None => {
+                self.factors.push(Factor::Prior {
+                    kf: idx,
+                    pose: odom_pose,
+                    info: information(self.cfg.anchor_sigma_rad, self.cfg.anchor_sigma_m),
+                });
+                odom_pose
+            }
+            Some(prev) => {
+                let step = prev.odom_pose.inverse() * odom_pose;
+                let dist = step.translation.vector.norm();
+                let c = &self.cfg;
+                self.factors.push(Factor::Between {
+                    from: idx - 1,
+                    to: idx,
+                    measured: step,
+                    info: information(
+                        c.odom_sigma_rot_min_rad + c.odom_sigma_rot_per_m_rad * dist,
+                        c.odom_sigma_trans_min_m + c.odom_sigma_trans_per_m * dist,
+                    ),
+                    kind: BetweenKind::Odometry,
+                });
+                prev.pose * step
+            }
+        };
+        let descriptor = cloud.as_ref().map(|c| {
+            ScanContext::new(
+                &c.points,
+                self.cfg.place_max_range_m,
+                self.cfg.place_z_offset_m,
+            )
+        });
+        if let Some(d) = &descriptor {
+            if d.occupancy() >= self.cfg.place_min_occupancy {
+                self.places.insert(idx, stamp_s, d.clone());
+            }
+        }
+        self.keyframes.push(Keyframe {
+            stamp_s,
+            odom_pose,
+            pose,
+            cloud,
+            descriptor,
+        });
+        idx
+    }
+
+    /// Adds a GNSS position factor on keyframe `kf`: `enu_m` in the graph's world frame with
+    /// horizontal and vertical sigmas (floored at `gnss_min_sigma_m`). Only trusted fixes.
+    pub fn add_gnss(&mut self, kf: usize, enu_m: Vector3<f64>, sigma_h_m: f64, sigma_v_m: f64) {
+        if kf >= self.keyframes.len() || !enu_m.iter().all(|v| v.is_finite()) {
+            return;
+        }
+        let h = sigma_h_m.max(self.cfg.gnss_min_sigma_m);
+        let v = sigma_v_m.max(self.cfg.gnss_min_sigma_m);
+        let info =
+            Matrix3::from_diagonal(&Vector3::new(1.0 / (h * h), 1.0 / (h * h), 1.0 / (v * v)));
+        self.factors.push(Factor::Position { kf, enu_m, info });
+    }
+
+    /// Adds a loop factor `from<-to` (robust kernel), e.g. from another recogniser.
+    pub fn add_loop(&mut self, from: usize, to: usize, measured: Isometry3<f64>) {
+        if from >= self.keyframes.len() || to >= self.keyframes.len() || from == to {
+            return;
+        }
+        self.factors.push(Factor::Between {
+            from,
+            to,
+            measured,
+            info: information(self.cfg.loop_sigma_rot_rad, self.cfg.loop_sigma_trans_m),
+            kind: BetweenKind::Loop,
+        });
+    }
+
+    /// Looks for a place keyframe `kf` revisits (Scan Context), verifies it by ICP and adds
+    /// the loop factor when it holds. Does not optimise.
+    pub fn detect_loop(&mut self, kf: usize) -> Result<LoopClosure, LoopRejection> {
+        let Some(k) = self.keyframes.get(kf) else {
+            return Err(LoopRejection::NoDescriptor);
+        };
+        let (Some(desc), Some(cloud)) = (&k.descriptor, &k.cloud) else {
+            return Err(LoopRejection::NoDescriptor);
+        };
+        if desc.occupancy() < self.cfg.place_min_occupancy {
+            return Err(LoopRejection::NoDescriptor);
+        }
+        let cloud = Arc::clone(cloud);
+        let m = self
+            .places
+            .query(
+                desc,
+                k.stamp_s - self.cfg.loop_exclude_recent_s,
+                self.cfg.place_candidates,
+                self.cfg.place_max_distance,
+            )
+            .ok_or(LoopRejection::NoCandidate)?;
+        let Some(target) = self.keyframes[m.id].cloud.clone() else {
+            return Err(LoopRejection::NoDescriptor);
+        };
+        let init = Isometry3::from_parts(
+            Default::default(),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, m.yaw_rad),
+        );
+        let (measured, inlier_ratio, rms_m) = verify_loop(&cloud, &target, &init, &self.cfg)?;
+        self.add_loop(m.id, kf, measured);
+        Ok(LoopClosure {
+            from: m.id,
+            to: kf,
+            measured,
+            descriptor_distance: m.distance,
+            inlier_ratio,
+            rms_m,
+        })
+    }
+
+    /// Optimises all keyframe poses.
+    pub fn optimise(&mut self) -> SolveReport {
+        let mut poses: Vec<Isometry3<f64>> = self.keyframes.iter().map(|k| k.pose).collect();
+        let report = solve::optimise(
+            &mut poses,
+            &self.factors,
+            &SolveOptions {
+                max_iterations: self.cfg.max_iterations,
+                min_relative_decrease: 1e-6,
+                loop_cauchy_c: self.cfg.loop_cauchy_sigmas,
+            },
+        );
+        for (k, p) in self.keyframes.iter_mut().zip(poses) {
+            k.pose = p;
+        }
+        report
+    }
+
+    /// The correction `world<-slam_map` at keyframe `kf` (`pose * odom_pose^-1`).
+    pub fn correction(&self, kf: usize) -> Option<Isometry3<f64>> {
+        self.keyframes
+            .get(kf)
+            .map(|k| k.pose * k.odom_pose.inverse())
+    }
+
+    /// The correction at time `stamp_s`, interpolated between the keyframes around it (the
+    /// first's before them, the last's after): what to apply to an odometry pose or a map
+    /// cell made at that time.
+    pub fn correction_at(&self, stamp_s: f64) -> Option<Isometry3<f64>> {
+        let n = self.keyframes.len();
+        if n == 0 {
+            return None;
+        }
+        let i = self.keyframes.partition_point(|k| k.stamp_s <= stamp_s);
+        if i == 0 {
+            return self.correction(0);
+        }
+        if i == n {
+            return self.correction(n - 1);
+        }
+        let (a, b) = (&self.keyframes[i - 1], &self.keyframes[i]);
+        let (ca, cb) = (self.correction(i - 1)?, self.correction(i)?);
+        let s = ((stamp_s - a.stamp_s) / (b.stamp_s - a.stamp_s).max(1e-9)).clamp(0.0, 1.0);
+        Some(ca.lerp_slerp(&cb, s))
+    }
+}
+
+#[cfg(test)]
+mod tests;

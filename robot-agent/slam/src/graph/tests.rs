@@ -1,0 +1,266 @@
+//! Pose graph tests: synthetic loops, GNSS outages and loop verification.
+
+use super::*;
+use crate::config::FilterConfig;
+use crate::filters::normals_and_density;
+use crate::place::tests::{pose, scan, world};
+use crate::se3;
+use nalgebra::Vector6;
+use rand::{rngs::StdRng, Rng, SeedableRng};
+
+/// Truth poses along a closed square of side `side_m`, one every `step_m`, turning left at the
+/// corners; the last pose is the first again.
+fn square(side_m: f64, step_m: f64) -> Vec<Isometry3<f64>> {
+    let per_side = (side_m / step_m).round() as usize;
+    let mut out = Vec::new();
+    let mut t = Isometry3::identity();
+    for _ in 0..4 {
+        for _ in 0..per_side {
+            out.push(t);
+            t *= se3::from_xyz_rpy([step_m, 0.0, 0.0], [0.0, 0.0, 0.0]);
+        }
+        t *= se3::from_xyz_rpy([0.0, 0.0, 0.0], [0.0, 0.0, std::f64::consts::FRAC_PI_2]);
+    }
+    out.push(out[0]);
+    out
+}
+
+/// Odometry drifting from the truth: each step gets a yaw bias, a scale error and noise.
+fn drifted(truth: &[Isometry3<f64>], yaw_bias_rad: f64, seed: u64) -> Vec<Isometry3<f64>> {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let mut out = vec![truth[0]];
+    for w in truth.windows(2) {
+        let step = w[0].inverse() * w[1];
+        let noise = Vector6::from_fn(|k, _| {
+            if k < 3 {
+                rng.random_range(-0.0005..0.0005)
+            } else {
+                rng.random_range(-0.005..0.005)
+            }
+        });
+        let scaled = Isometry3::from_parts(
+            (step.translation.vector * 1.005).into(),
+            step.rotation * UnitQuaternion::from_euler_angles(0.0, 0.0, yaw_bias_rad),
+        );
+        out.push(out.last().unwrap() * scaled * se3::exp(&noise));
+    }
+    out
+}
+
+fn position_errors(g: &PoseGraph, truth: &[Isometry3<f64>]) -> Vec<f64> {
+    g.keyframes()
+        .iter()
+        .zip(truth)
+        .map(|(k, t)| (k.pose.translation.vector - t.translation.vector).norm())
+        .collect()
+}
+
+/// The largest change the optimisation made to one keyframe-to-keyframe step, metres: how far
+/// the optimised step moves the next keyframe from where the odometry step put it. A snap to
+/// the returning fix would show the whole drift here at one keyframe.
+fn largest_step_change(g: &PoseGraph) -> f64 {
+    g.keyframes()
+        .windows(2)
+        .map(|k| {
+            let odom = k[0].odom_pose.inverse() * k[1].odom_pose;
+            let opt = k[0].pose.inverse() * k[1].pose;
+            se3::translation_norm(&(odom.inverse() * opt))
+        })
+        .fold(0.0, f64::max)
+}
+
+fn max(v: &[f64]) -> f64 {
+    v.iter().cloned().fold(0.0, f64::max)
+}
+
+#[test]
+fn square_loop_is_corrected_by_one_loop_factor() {
+    // 300 m square (75 m sides), a keyframe every 2 m, 0.05 deg of yaw drift per keyframe
+    // (0.025 deg/m, at the odometry model's one sigma) and 0.5 % scale error.
+    let truth = square(75.0, 2.0);
+    let odom = drifted(&truth, 0.05f64.to_radians(), 1);
+    let mut g = PoseGraph::new(GraphConfig::default());
+    for (i, o) in odom.iter().enumerate() {
+        g.add_keyframe(i as f64, *o, None);
+    }
+    let before = position_errors(&g, &truth);
+    let n = truth.len() - 1;
+    // The last keyframe is back at the first: the loop measures the truth relative pose.
+    g.add_loop(0, n, truth[0].inverse() * truth[n]);
+    let report = g.optimise();
+    let after = position_errors(&g, &truth);
+    println!(
+        "square loop: max error {:.2} m -> {:.3} m, end {:.2} m -> {:.3} m, {} iterations",
+        max(&before),
+        max(&after),
+        before[n],
+        after[n],
+        report.iterations
+    );
+    assert!(
+        max(&before) > 5.0,
+        "drift too small to test: {}",
+        max(&before)
+    );
+    assert!(report.final_cost < report.initial_cost);
+    assert!(after[n] < 0.1, "end error {}", after[n]);
+    assert!(max(&after) < 1.0, "max error after {}", max(&after));
+    // The correction is spread: no optimised step departs much from its odometry step.
+    let jump = largest_step_change(&g);
+    println!("square loop: largest step change {jump:.3} m");
+    assert!(jump < 0.2, "correction jumps {jump} m between keyframes");
+}
+
+#[test]
+fn gnss_after_an_outage_pulls_the_stretch_back_smoothly() {
+    // 400 m along a gentle curve, a keyframe every 2 m; RTK lost for keyframes 60..140.
+    let truth: Vec<Isometry3<f64>> = (0..200)
+        .map(|i| {
+            let s = i as f64 * 2.0;
+            let yaw = 0.3 * (s / 100.0).sin();
+            pose(s, 20.0 * (s / 100.0).sin(), yaw)
+        })
+        .collect();
+    let odom = drifted(&truth, 0.1f64.to_radians(), 2);
+    let mut g = PoseGraph::new(GraphConfig::default());
+    let mut rng = StdRng::seed_from_u64(3);
+    let outage = 60..140;
+    let mut snapped_jump = 0.0f64;
+    for (i, o) in odom.iter().enumerate() {
+        let kf = g.add_keyframe(i as f64, *o, None);
+        if !outage.contains(&i) {
+            let noise = Vector3::new(
+                rng.random_range(-0.02..0.02),
+                rng.random_range(-0.02..0.02),
+                rng.random_range(-0.03..0.03),
+            );
+            g.add_gnss(kf, truth[i].translation.vector + noise, 0.02, 0.03);
+            // Optimise as the agent would: while RTK holds and when it returns.
+            if i < outage.start || i == outage.end {
+                if i == outage.end {
+                    // What a position snap would do: jump by the drift accumulated.
+                    snapped_jump = (g.keyframes()[kf].pose.translation.vector
+                        - truth[i].translation.vector)
+                        .norm();
+                }
+                g.optimise();
+            }
+        }
+    }
+    g.optimise();
+    let err = position_errors(&g, &truth);
+    let worst_outage = max(&err[outage.clone()]);
+    let worst_jump = largest_step_change(&g);
+    println!(
+        "gnss outage: drift at return {snapped_jump:.2} m, worst error in outage after {worst_outage:.3} m, \
+         largest correction step between keyframes {worst_jump:.3} m"
+    );
+    assert!(
+        snapped_jump > 3.0,
+        "drift too small to test: {snapped_jump}"
+    );
+    assert!(worst_outage < 1.0, "outage stretch error {worst_outage}");
+    assert!(max(&err[..outage.start]) < 0.1);
+    assert!(max(&err[outage.end..]) < 0.1);
+    assert!(
+        worst_jump < snapped_jump / 10.0,
+        "correction jumps {worst_jump} m between keyframes"
+    );
+}
+
+fn oriented(points: Vec<[f32; 3]>) -> Arc<OrientedCloud> {
+    let cfg = FilterConfig {
+        max_density_per_m3: 0.0,
+        ..FilterConfig::default()
+    };
+    Arc::new(normals_and_density(
+        points,
+        [0.0; 3],
+        &cfg,
+        &mut StdRng::seed_from_u64(1),
+    ))
+}
+
+#[test]
+fn verification_accepts_a_true_loop_and_rejects_a_wrong_one() {
+    let w = world(4, 200.0, 200);
+    let cfg = GraphConfig::default();
+    let a = pose(0.0, 0.0, 0.2);
+    let b = pose(1.2, -0.8, 0.2 + 0.9);
+    let elsewhere = pose(50.0, 40.0, 0.2);
+    let ca = oriented(scan(&w, &a, 40.0, 1));
+    let cb = oriented(scan(&w, &b, 40.0, 2));
+    let ce = oriented(scan(&w, &elsewhere, 40.0, 3));
+    // The descriptor's yaw seeds the ICP, as in detect_loop.
+    let sa = ScanContext::new(&ca.points, 60.0, 2.0);
+    let sb = ScanContext::new(&cb.points, 60.0, 2.0);
+    let (_, yaw) = sb.distance(&sa);
+    let init = Isometry3::from_parts(
+        Default::default(),
+        UnitQuaternion::from_euler_angles(0.0, 0.0, yaw),
+    );
+    let (measured, inl, rms) = verify_loop(&cb, &ca, &init, &cfg).expect("true loop accepted");
+    let truth = a.inverse() * b;
+    let d = truth.inverse() * measured;
+    println!(
+        "true loop: inliers {inl:.2}, rms {rms:.3} m, error {:.3} m {:.4} rad",
+        se3::translation_norm(&d),
+        se3::rotation_angle(&d)
+    );
+    assert!(se3::translation_norm(&d) < 0.1 && se3::rotation_angle(&d) < 0.01);
+    // The same scan against another place, with the best the descriptor offers.
+    let se = ScanContext::new(&ce.points, 60.0, 2.0);
+    let (_, yaw_e) = sb.distance(&se);
+    let init_e = Isometry3::from_parts(
+        Default::default(),
+        UnitQuaternion::from_euler_angles(0.0, 0.0, yaw_e),
+    );
+    let wrong = verify_loop(&cb, &ce, &init_e, &cfg);
+    println!("wrong loop: {wrong:?}");
+    assert!(wrong.is_err(), "wrong loop accepted: {wrong:?}");
+}
+
+#[test]
+fn detected_loop_closes_a_drifted_circuit() {
+    // A 160 m square circuit through the synthetic world, a keyframe every 4 m with its scan;
+    // the odometry drifts 0.1 deg of yaw per keyframe and 0.5 % in scale. Back at the start, the place is found,
+    // verified and the graph pulls the end back.
+    let w = world(5, 200.0, 200);
+    let truth = square(40.0, 4.0);
+    let odom = drifted(&truth, 0.1f64.to_radians(), 6);
+    let cfg = GraphConfig {
+        loop_exclude_recent_s: 10.0,
+        ..GraphConfig::default()
+    };
+    let mut g = PoseGraph::new(cfg);
+    let mut closures = Vec::new();
+    for (i, (t, o)) in truth.iter().zip(&odom).enumerate() {
+        let kf = g.add_keyframe(
+            i as f64,
+            *o,
+            Some(oriented(scan(&w, t, 40.0, 10 + i as u64))),
+        );
+        if let Ok(c) = g.detect_loop(kf) {
+            closures.push(c);
+        }
+    }
+    let n = truth.len() - 1;
+    let before = position_errors(&g, &truth)[n];
+    assert!(
+        closures.iter().any(|c| c.to == n && c.from <= 1),
+        "no loop back to the start: {closures:?}"
+    );
+    for c in &closures {
+        // Every accepted loop is a true revisit (within the keyframe spacing).
+        let d = (truth[c.from].translation.vector - truth[c.to].translation.vector).norm();
+        assert!(d < 4.5, "false loop {c:?} ({d} m apart)");
+    }
+    g.optimise();
+    let after = position_errors(&g, &truth)[n];
+    println!(
+        "detected loop: {} closures, end error {before:.2} m -> {after:.3} m",
+        closures.len()
+    );
+    assert!(before > 1.0, "drift too small to test: {before}");
+    assert!(after < 0.15, "end error after {after}");
+}
