@@ -1,5 +1,5 @@
 //! A fleet across networks (issue 20), each host a Linux network namespace made by the test:
-//! robot - link - router - station(s), over TLS with the fleet's certificates. The robot is a
+//! robot - link - router - station(s) (one of them optionally behind a second router), over TLS with the fleet's certificates. The robot is a
 //! client of the router (`config/zenoh/router-client.json5`), the router is `operator-station
 //! router`, the stations are peers of the router with their own databases. Delay, loss and cuts
 //! on the robot's link come from `tc netem` where the kernel has it, else from the userspace
@@ -93,7 +93,7 @@ fn goal_mission_completes_across_300_ms_rtt_and_5_percent_loss() {
     }
     let t_test = Instant::now();
     let dir = tempfile::tempdir().unwrap();
-    let mut site = Site::new(1, 1, &["r1", "probe"], dir.path());
+    let mut site = Site::new(1, 1, &["r1", "probe"], dir.path(), false);
     let how = site.shape(150, 0.05);
     println!("robot link: 150 ms each way, 5 % loss each way, by {how}");
     let _router = site.start_router();
@@ -151,7 +151,7 @@ fn every_tile_reaches_both_stations_after_a_60_s_cut() {
     }
     let t_test = Instant::now();
     let dir = tempfile::tempdir().unwrap();
-    let mut site = Site::new(2, 2, &["r1"], dir.path());
+    let mut site = Site::new(2, 2, &["r1"], dir.path(), false);
     let _router = site.start_router();
     let stations = [site.start_station(0), site.start_station(1)];
     let truth = dir.path().join("r1.truth");
@@ -233,14 +233,16 @@ fn every_tile_reaches_both_stations_after_a_60_s_cut() {
 }
 
 #[test]
-fn two_stations_see_the_same_merged_map() {
+fn two_stations_at_two_sites_see_the_same_merged_map() {
     if !namespaces_available() {
         return;
     }
     let t_test = Instant::now();
     let dir = tempfile::tempdir().unwrap();
-    let mut site = Site::new(3, 2, &["r1"], dir.path());
+    // The second station is at another site, behind a router joined to the first router.
+    let mut site = Site::new(3, 2, &["r1"], dir.path(), true);
     let _router = site.start_router();
+    let _router_b = site.start_router_b();
     // Both stations watch from the start, so both see the same stream of tiles. (A station that
     // joins late gets only the robot's current tiles, which is all the robot still has; see
     // README "Fleets across networks" for how far that is from the others' merged map.)

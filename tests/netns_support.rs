@@ -208,6 +208,8 @@ pub struct Site {
     pub router_ns: String,
     /// The stations' namespaces.
     pub station_ns: Vec<String>,
+    /// The second site's router namespace, if any.
+    pub routerb_ns: Option<String>,
     /// The link emulator on the robot's link.
     pub emu: Emulator,
     /// How delay and loss are made.
@@ -219,6 +221,9 @@ pub struct Site {
 /// The router's address as the robot sees it.
 pub const ROUTER_FOR_ROBOT: &str = "10.0.1.2";
 
+/// The first router's address as the second site's router sees it.
+pub const ROUTER_A_FOR_B: &str = "10.0.9.1";
+
 /// The router's address as station `i` (0-based) sees it.
 pub fn router_for_station(i: usize) -> String {
     format!("10.0.{}.1", i + 2)
@@ -227,17 +232,31 @@ pub fn router_for_station(i: usize) -> String {
 impl Site {
     /// Builds the namespaces and links of test number `k` with `stations` stations, a fleet PKI
     /// with a certificate for each of `robots`, and the emulator on the robot's link.
-    pub fn new(k: u32, stations: usize, robots: &[&str], dir: &Path) -> Site {
+    /// With `second_site`, the last station sits behind a second router (namespace `routerb`,
+    /// 10.0.9.2) that connects to the first one (10.0.9.1): two sites joined router to router.
+    pub fn new(k: u32, stations: usize, robots: &[&str], dir: &Path, second_site: bool) -> Site {
         let tag = format!("tn{}-{k}", std::process::id());
         let name = |s: &str| format!("{tag}-{s}");
         let (robot_ns, link_ns, router_ns) = (name("robot"), name("link"), name("router"));
         let station_ns: Vec<String> = (0..stations).map(|i| name(&format!("st{i}"))).collect();
+        let routerb_ns = second_site.then(|| name("routerb"));
         let mut namespaces = Vec::new();
         for n in [&robot_ns, &link_ns, &router_ns]
             .into_iter()
             .chain(station_ns.iter())
+            .chain(routerb_ns.iter())
         {
             namespaces.push(Netns::new(n.clone()));
+        }
+        if let Some(rb) = &routerb_ns {
+            veth(
+                &router_ns,
+                "rb",
+                Some(&format!("{ROUTER_A_FOR_B}/24")),
+                rb,
+                "ra",
+                Some("10.0.9.2/24"),
+            );
         }
         veth(&robot_ns, "eth0", Some("10.0.1.1/24"), &link_ns, "la", None);
         veth(
@@ -268,8 +287,12 @@ impl Site {
             "1",
         ]));
         for (i, ns) in station_ns.iter().enumerate() {
+            let behind = match &routerb_ns {
+                Some(rb) if i + 1 == stations => rb,
+                _ => &router_ns,
+            };
             veth(
-                &router_ns,
+                behind,
                 &format!("s{i}"),
                 Some(&format!("{}/24", router_for_station(i))),
                 ns,
@@ -303,6 +326,8 @@ impl Site {
             pki.display().to_string(),
             "--host".into(),
             ROUTER_FOR_ROBOT.into(),
+            "--host".into(),
+            ROUTER_A_FOR_B.into(),
         ];
         for i in 0..stations {
             init.extend(["--host".into(), router_for_station(i)]);
@@ -324,6 +349,7 @@ impl Site {
             link_ns,
             router_ns,
             station_ns,
+            routerb_ns,
             emu,
             shaper,
             namespaces,
@@ -364,6 +390,27 @@ impl Site {
                 &self.pki.display().to_string(),
                 "--zenoh-listen",
                 &format!("tls/0.0.0.0:{ZENOH_PORT}"),
+            ]),
+            &self.dir,
+        )
+    }
+
+    /// Starts the second site's router, connecting to the first router.
+    pub fn start_router_b(&self) -> Proc {
+        let ns = self
+            .routerb_ns
+            .as_ref()
+            .expect("a site with a second router");
+        Proc::start(
+            "routerb",
+            ns_command(ns, &bin("operator-station")).args([
+                "router",
+                "--pki",
+                &self.pki.display().to_string(),
+                "--zenoh-listen",
+                &format!("tls/0.0.0.0:{ZENOH_PORT}"),
+                "--connect",
+                &format!("tls/{ROUTER_A_FOR_B}:{ZENOH_PORT}"),
             ]),
             &self.dir,
         )
