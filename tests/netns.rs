@@ -1,7 +1,8 @@
 //! A fleet across networks (issue 20), each host a Linux network namespace made by the test:
 //! robot - link - router - station(s) (one optionally behind a second router joined to the
-//! first), over TLS with the fleet's certificates. The robot is a client of the router (`config/zenoh/router-client.json5`), the router is `operator-station
-//! router`, the stations are peers of the router with their own databases. Delay, loss and cuts
+//! first), over TLS with the fleet's certificates. The robot is a client of the router
+//! (`config/zenoh/router-client.json5`), the router is `operator-station router`, the stations
+//! are peers of the router with their own databases. Delay, loss and cuts
 //! on the robot's link come from `tc netem` where the kernel has it, else from the userspace
 //! emulator `terranav-linkemu` in the link namespace (which also makes the cut either way).
 //!
