@@ -460,6 +460,7 @@ impl Inner {
             let mut f = self.fleet.lock().unwrap_or_else(|p| p.into_inner());
             let r = f.robot(rid);
             r.hit(RateTopic::Pose, now, now_ms);
+            r.pose_latency.record(now_ms as i64 - p.t_unix_ms as i64);
             let emit = r
                 .last_pose_event
                 .map(|t| now.duration_since(t) >= Duration::from_millis(95))

@@ -281,7 +281,8 @@ pub fn robots_json(inner: &Inner) -> Value {
                 .unwrap_or_default();
             json!({"robot": id, "online": r.online, "last_seen_unix_ms": r.last_seen_unix_ms,
                    "session": r.session, "datum_id": r.datum_id, "pose": r.pose, "status": r.status,
-                   "path": path, "rates_hz": rates, "ages_ms": ages})
+                   "path": path, "rates_hz": rates, "ages_ms": ages,
+                   "pose_latency_ms": r.pose_latency.summary()})
         })
         .collect();
     Value::Array(list)

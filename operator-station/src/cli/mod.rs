@@ -5,6 +5,7 @@
 //! TLS with mutual authentication, and without it anything off loopback is refused at start.
 
 pub mod bench;
+pub mod net;
 pub mod pki;
 
 use std::net::SocketAddr;
@@ -74,6 +75,10 @@ pub enum Cmd {
     Bench(bench::BenchArgs),
     /// The fleet's certificates: init (CA and station), issue (a robot), revoke (a robot).
     Pki(pki::PkiArgs),
+    /// A Zenoh router for robots and stations on other networks (no zenohd needed).
+    Router(net::RouterArgs),
+    /// Every tile a robot serves, written to a folder (to check a station's map against it).
+    RobotTiles(net::RobotTilesArgs),
 }
 
 /// `serve` options.
@@ -307,6 +312,8 @@ pub fn main() -> anyhow::Result<()> {
             Cmd::Export(a) => export(a),
             Cmd::Bench(a) => bench::run(a).await,
             Cmd::Pki(a) => pki::run(a),
+            Cmd::Router(a) => net::router(a).await,
+            Cmd::RobotTiles(a) => net::robot_tiles(a).await,
         }
     })
 }

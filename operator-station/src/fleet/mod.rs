@@ -68,6 +68,38 @@ impl Rate {
     }
 }
 
+/// Pose latencies kept per robot: the newest ones (at 10 Hz, about 3.4 minutes).
+pub const LATENCY_WINDOW: usize = 2048;
+
+/// Pose latency as the station sees it: its receive time minus the pose's stamp. Robot and
+/// station clocks must agree for it to mean transport delay (NTP or GNSS time on real robots; one
+/// clock in the tests), so it is reported as measured, negative values included.
+#[derive(Clone, Debug, Default)]
+pub struct Latency {
+    ms: VecDeque<i64>,
+}
+
+impl Latency {
+    /// Records one latency, ms.
+    pub fn record(&mut self, ms: i64) {
+        if self.ms.len() == LATENCY_WINDOW {
+            self.ms.pop_front();
+        }
+        self.ms.push_back(ms);
+    }
+
+    /// Count, median, 99th percentile and maximum over the window (ms); None before any pose.
+    pub fn summary(&self) -> Option<serde_json::Value> {
+        let mut v: Vec<i64> = self.ms.iter().copied().collect();
+        if v.is_empty() {
+            return None;
+        }
+        v.sort_unstable();
+        let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
+        Some(serde_json::json!({"n": v.len(), "p50": at(0.5), "p99": at(0.99), "max": at(1.0)}))
+    }
+}
+
 /// What the station knows about one robot.
 #[derive(Clone, Debug, Default)]
 pub struct RobotState {
@@ -87,6 +119,8 @@ pub struct RobotState {
     pub path: Option<Path>,
     /// Rates per topic.
     pub rates: BTreeMap<RateTopic, Rate>,
+    /// Pose latencies (receive time minus stamp).
+    pub pose_latency: Latency,
     /// Last stored track point: (time, x, y, yaw).
     pub last_track: Option<(u64, f64, f64, f64)>,
     /// When the last pose went out on the WebSocket.
@@ -239,5 +273,25 @@ mod tests {
         assert_eq!(f.online_count(), 1);
         assert!(f.set_online("a", false, 3));
         assert_eq!(f.online_count(), 0);
+    }
+
+    #[test]
+    fn pose_latency_keeps_a_window_and_reports_percentiles() {
+        let mut l = Latency::default();
+        assert!(l.summary().is_none());
+        for ms in 1..=100 {
+            l.record(ms);
+        }
+        let s = l.summary().unwrap();
+        assert_eq!(
+            (s["n"].as_u64(), s["p99"].as_i64(), s["max"].as_i64()),
+            (Some(100), Some(99), Some(100))
+        );
+        for _ in 0..LATENCY_WINDOW {
+            l.record(-3);
+        }
+        let s = l.summary().unwrap();
+        assert_eq!(s["n"].as_u64(), Some(LATENCY_WINDOW as u64));
+        assert_eq!(s["max"].as_i64(), Some(-3), "old values leave the window");
     }
 }
