@@ -308,30 +308,40 @@ pub fn default_threads() -> usize {
 }
 
 /// Runs `f` over `items` on up to `threads` threads (the calling one included), results in the
-/// order of `items`. Scoped threads per batch: a batch is milliseconds of work, a spawn tens of
-/// microseconds, and nothing lives on between batches.
+/// order of `items`. Each thread takes the next item as it finishes one, so a thread the OS
+/// preempts (the station shares its cores) holds back one item, not a share of the batch. Scoped
+/// threads per batch: a batch is milliseconds of work, a spawn tens of microseconds.
 fn par_map<T: Sync, R: Send>(items: &[T], threads: usize, f: impl Fn(&T) -> R + Sync) -> Vec<R> {
     if threads <= 1 || items.len() <= 1 {
         return items.iter().map(&f).collect();
     }
-    let chunk = items.len().div_ceil(threads.min(items.len()));
-    let f = &f;
-    std::thread::scope(|s| {
-        let mut chunks = items.chunks(chunk);
-        let own = chunks.next().unwrap_or_default();
-        let handles: Vec<_> = chunks
-            .map(|c| s.spawn(move || c.iter().map(f).collect::<Vec<R>>()))
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let work = || {
+        let mut done = Vec::new();
+        loop {
+            let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            let Some(item) = items.get(i) else {
+                return done;
+            };
+            done.push((i, f(item)));
+        }
+    };
+    let mut all: Vec<(usize, R)> = std::thread::scope(|s| {
+        let handles: Vec<_> = (1..threads.min(items.len()))
+            .map(|_| s.spawn(work))
             .collect();
-        let mut out: Vec<R> = own.iter().map(f).collect();
+        let mut all = work();
         for h in handles {
             match h.join() {
-                Ok(v) => out.extend(v),
+                Ok(v) => all.extend(v),
                 // A panic in a decoder is a bug; carry it to the merge thread as one.
                 Err(p) => std::panic::resume_unwind(p),
             }
         }
-        out
-    })
+        all
+    });
+    all.sort_unstable_by_key(|(i, _)| *i);
+    all.into_iter().map(|(_, r)| r).collect()
 }
 
 /// Decodes a job's payload and checks it against its key.
