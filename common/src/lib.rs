@@ -12,6 +12,7 @@
 //!   and which endpoints are loopback.
 #![deny(missing_docs)]
 
+pub mod bus_config;
 pub mod command;
 pub mod geo;
 pub mod geom;

@@ -1,12 +1,12 @@
-//! The station's Zenoh side and its wiring: subscribes to `terranav/**`, tracks liveliness,
-//! resyncs late or reconnecting robots through their queryables, feeds the merge thread and the
-//! store thread, and broadcasts live events for the WebSocket. Every command it sends carries a
+//! The station's wiring: handles what its bus ([`crate::bus`]) hears on `terranav/**`, tracks
+//! liveliness, resyncs late or reconnecting robots through their queryables, feeds the merge
+//! thread and the store thread, and broadcasts live events for the WebSocket. Every command it sends carries a
 //! header from its [`CommandStamper`]. Its Zenoh session can be re-opened with a new config
 //! ([`Station::reopen`]: new access rules after an issue or revocation) while everything else
 //! runs on.
 
 use std::collections::BTreeMap;
-use std::path::{Path as FsPath, PathBuf};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex, RwLock};
 use std::time::{Duration, Instant};
@@ -17,8 +17,6 @@ use common::keys::{self, RobotId, Topic};
 use common::msg::{self, CmdHeader, Datum, Path, Pose, Route, Session, Status};
 use serde_json::json;
 use tokio::sync::broadcast;
-use zenoh::query::ConsolidationMode;
-use zenoh::sample::SampleKind;
 
 use crate::alerts::{AlertConfig, AlertKind, Alerts, Observation};
 use crate::fleet::{Fleet, RateTopic, MAX_PENDING_TILES};
@@ -28,11 +26,10 @@ use crate::missions::Mission;
 use crate::store::{self, DatumRow, RouteRow, SessionRow, StoreOp, StoreWriter};
 use crate::zones::{zone_set_for, ZoneRecord};
 
+pub use crate::bus::{sender_id, zenoh_config, DEFAULT_LISTEN_ENDPOINT};
+
 /// Version of the station.
 pub const VERSION: &str = env!("CARGO_PKG_VERSION");
-
-/// Default Zenoh endpoint the station listens on (robots connect there).
-pub const DEFAULT_LISTEN_ENDPOINT: &str = "tcp/127.0.0.1:7447";
 
 /// Why the station failed to start.
 #[derive(Debug, thiserror::Error)]
@@ -46,80 +43,12 @@ pub enum StationError {
     Store(#[from] store::StoreError),
 }
 
-fn zerr(e: impl std::fmt::Display) -> StationError {
-    StationError::Zenoh(e.to_string())
-}
-
 /// Unix time now, milliseconds.
 pub fn now_unix_ms() -> u64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_millis() as u64)
         .unwrap_or(0)
-}
-
-/// A sender id for the commands of `session`'s process: the session id is random, so it differs
-/// for every station and every CLI call.
-pub fn sender_id(session: &zenoh::Session) -> u64 {
-    let zid = session.zid().to_le_bytes();
-    let mut b = [0u8; 8];
-    b.copy_from_slice(&zid[..8]);
-    u64::from_le_bytes(b)
-}
-
-/// Builds a Zenoh config: a json5 file or the terranav defaults (peer, multicast scouting off,
-/// 1.5 s lease, fast reconnect), then explicit listen/connect endpoints and mode.
-pub fn zenoh_config(
-    file: Option<&FsPath>,
-    mode: Option<&str>,
-    listen: &[String],
-    connect: &[String],
-) -> Result<zenoh::Config, StationError> {
-    let mut c = match file {
-        Some(f) => {
-            zenoh::Config::from_file(f).map_err(|e| zerr(format!("{}: {e}", f.display())))?
-        }
-        None => {
-            let mut c = zenoh::Config::default();
-            for (k, v) in [
-                ("mode", "\"peer\""),
-                ("transport/link/tx/lease", "1500"),
-                ("transport/link/tx/keep_alive", "4"),
-                (
-                    "connect/retry",
-                    "{period_init_ms: 500, period_max_ms: 1000, period_increase_factor: 1.5}",
-                ),
-            ] {
-                c.insert_json5(k, v).map_err(zerr)?;
-            }
-            c
-        }
-    };
-    c.insert_json5("scouting/multicast/enabled", "false")
-        .map_err(zerr)?;
-    if let Some(m) = mode {
-        c.insert_json5("mode", &format!("{m:?}")).map_err(zerr)?;
-    }
-    if !listen.is_empty() {
-        c.insert_json5(
-            "listen/endpoints",
-            &serde_json::to_string(listen).map_err(zerr)?,
-        )
-        .map_err(zerr)?;
-    } else if file.is_none() {
-        // Zenoh's peer default listens on every interface (`tcp/[::]:0`); a session that only
-        // connects (CLI commands, tests) needs at most a loopback port.
-        c.insert_json5("listen/endpoints", "[\"tcp/127.0.0.1:0\"]")
-            .map_err(zerr)?;
-    }
-    if !connect.is_empty() {
-        c.insert_json5(
-            "connect/endpoints",
-            &serde_json::to_string(connect).map_err(zerr)?,
-        )
-        .map_err(zerr)?;
-    }
-    Ok(c)
 }
 
 /// Options of a running station.
@@ -353,12 +282,9 @@ impl Inner {
                 Err(e) => self.decode_error(key, e),
             },
             Topic::Tile { tx, ty } => {
-                // Check the header cheaply here; the full decode runs on the merge thread.
-                match decode_tile(payload) {
-                    Ok(t) if t.index.tx == tx && t.index.ty == ty => {}
-                    Ok(_) => return self.decode_error(key, "tile index differs from its key"),
-                    Err(e) => return self.decode_error(key, e),
-                }
+                // No decoding here (the network task): the merge pool decodes each tile once and
+                // checks it against its key; a bad one is counted there.
+                let key_index = common::grid::TileIndex { tx, ty };
                 let datum = {
                     let mut f = self.fleet.lock().unwrap_or_else(|p| p.into_inner());
                     let r = f.robot(&rid);
@@ -367,7 +293,7 @@ impl Inner {
                         Some(d) => Some(d),
                         None => {
                             if r.pending_tiles.len() < MAX_PENDING_TILES {
-                                r.pending_tiles.push(payload.to_vec());
+                                r.pending_tiles.push((key_index, payload.to_vec()));
                             }
                             None
                         }
@@ -377,6 +303,7 @@ impl Inner {
                     Some(datum_id) => self.merge(MergeJob {
                         datum_id,
                         robot: rid,
+                        key_index: Some(key_index),
                         encoded: payload.to_vec(),
                     }),
                     None => self.spawn_query(robot, false),
@@ -425,10 +352,11 @@ impl Inner {
             r.datum_id = Some(datum_id.clone());
             (changed, std::mem::take(&mut r.pending_tiles))
         };
-        for encoded in pending {
+        for (key_index, encoded) in pending {
             self.merge(MergeJob {
                 datum_id: datum_id.clone(),
                 robot: rid.to_string(),
+                key_index: Some(key_index),
                 encoded,
             });
         }
@@ -562,7 +490,8 @@ impl Inner {
         });
     }
 
-    fn on_liveliness(self: &Arc<Self>, key: &str, alive: bool) {
+    /// Handles a robot's liveliness token appearing (`alive`) or vanishing.
+    pub fn on_liveliness(self: &Arc<Self>, key: &str, alive: bool) {
         let Ok((robot, Topic::Alive)) = keys::parse(key) else {
             return;
         };
@@ -592,29 +521,8 @@ impl Inner {
     }
 
     async fn get_all(self: &Arc<Self>, selector: String) -> usize {
-        let replies = match self
-            .session()
-            .get(&selector)
-            .consolidation(ConsolidationMode::None)
-            .timeout(Duration::from_secs(5))
+        crate::bus::subscribe::query_all(&self.session(), &selector, |k, p| self.on_sample(k, p))
             .await
-        {
-            Ok(r) => r,
-            Err(e) => {
-                tracing::warn!("query {selector} failed: {e}");
-                return 0;
-            }
-        };
-        let mut n = 0;
-        while let Ok(reply) = replies.recv_async().await {
-            if let Ok(sample) = reply.result() {
-                let key = sample.key_expr().as_str().to_string();
-                let payload = sample.payload().to_bytes();
-                self.on_sample(&key, &payload);
-                n += 1;
-            }
-        }
-        n
     }
 
     async fn resync(self: &Arc<Self>, robot: &RobotId, tiles: bool) {
@@ -657,11 +565,7 @@ impl Inner {
                     continue;
                 };
                 let key = keys::key(&id, Topic::Zones);
-                if let Err(e) = me
-                    .session()
-                    .put(&key, msg::encode(&set))
-                    .congestion_control(zenoh::qos::CongestionControl::Block)
-                    .await
+                if let Err(e) = crate::bus::put_command(&me.session(), key, msg::encode(&set)).await
                 {
                     tracing::warn!("zones to {r}: {e}");
                 }
@@ -798,11 +702,8 @@ impl Inner {
                 ),
             ),
         };
-        if let Err(e) = self
-            .session()
-            .put(keys::key(&id, topic), payload)
-            .congestion_control(zenoh::qos::CongestionControl::Block)
-            .await
+        if let Err(e) =
+            crate::bus::put_command(&self.session(), keys::key(&id, topic), payload).await
         {
             tracing::warn!("mission command to {robot}: {e}");
         }
@@ -901,7 +802,7 @@ impl Station {
             }),
             decode_errors.clone(),
         );
-        let session = zenoh::open(opts.zenoh).await.map_err(zerr)?;
+        let session = crate::bus::open(opts.zenoh).await?;
         let start_seq = (now_unix_ms() / 1000) as u32;
         let sender = sender_id(&session);
         let inner = Arc::new(Inner {
@@ -926,7 +827,7 @@ impl Station {
             runs: Mutex::new(BTreeMap::new()),
             alerts: Mutex::new(Alerts::restore(opts.alerts, alert_rows)),
         });
-        let subs = declare_subscribers(&inner).await?;
+        let subs = crate::bus::subscribe::declare(&inner).await?;
         let i5 = inner.clone();
         let watch_task = tokio::spawn(async move {
             let mut tick = tokio::time::interval(WATCH_PERIOD);
@@ -936,7 +837,7 @@ impl Station {
             }
         });
         let mut subs = subs;
-        subs.push(Box::new(AbortOnDrop(watch_task)));
+        subs.push(Box::new(crate::bus::AbortOnDrop(watch_task)));
         Ok(Station {
             inner,
             merge: Some(merge),
@@ -970,13 +871,13 @@ impl Station {
         for id in gone {
             self.inner.emit(robot_event(&id, false, now_ms));
         }
-        let session = zenoh::open(zenoh).await.map_err(zerr)?;
+        let session = crate::bus::open(zenoh).await?;
         *self
             .inner
             .session
             .write()
             .unwrap_or_else(|p| p.into_inner()) = session;
-        self.subs = declare_subscribers(&self.inner).await?;
+        self.subs = crate::bus::subscribe::declare(&self.inner).await?;
         Ok(())
     }
 
@@ -995,76 +896,6 @@ impl Station {
             }
         })
         .await;
-    }
-}
-
-/// The station's subscriptions on its current session: every robot key, liveliness (with
-/// history, so robots already there are seen at once), and the queryable of the zone sets.
-async fn declare_subscribers(
-    inner: &Arc<Inner>,
-) -> Result<Vec<Box<dyn std::any::Any + Send + Sync>>, StationError> {
-    let session = inner.session();
-    let mut subs: Vec<Box<dyn std::any::Any + Send + Sync>> = Vec::new();
-    {
-        let i2 = inner.clone();
-        let rt = tokio::runtime::Handle::current();
-        let sub = session
-            .declare_subscriber(keys::all())
-            .callback(move |sample| {
-                if sample.kind() != SampleKind::Put {
-                    return;
-                }
-                let _g = rt.enter();
-                let key = sample.key_expr().as_str();
-                let payload = sample.payload().to_bytes();
-                i2.on_sample(key, &payload);
-            })
-            .await
-            .map_err(zerr)?;
-        subs.push(Box::new(sub));
-    }
-    let i3 = inner.clone();
-    let rt = tokio::runtime::Handle::current();
-    let live = session
-        .liveliness()
-        .declare_subscriber(keys::all_alive())
-        .history(true)
-        .callback(move |sample| {
-            let _g = rt.enter();
-            i3.on_liveliness(sample.key_expr().as_str(), sample.kind() == SampleKind::Put);
-        })
-        .await
-        .map_err(zerr)?;
-    subs.push(Box::new(live));
-    // Robots that start after the zones were drawn ask for them here.
-    let zq = session
-        .declare_queryable(keys::all_zones())
-        .await
-        .map_err(zerr)?;
-    let i4 = inner.clone();
-    let zone_task = tokio::spawn(async move {
-        while let Ok(q) = zq.recv_async().await {
-            let key = q.key_expr().as_str().to_string();
-            let Ok((robot, Topic::Zones)) = keys::parse(&key) else {
-                continue;
-            };
-            if let Some(set) = i4.zone_set(robot.as_str()) {
-                if let Err(e) = q.reply(&key, msg::encode(&set)).await {
-                    tracing::warn!("zones reply to {robot}: {e}");
-                }
-            }
-        }
-    });
-    subs.push(Box::new(AbortOnDrop(zone_task)));
-    Ok(subs)
-}
-
-/// A task that ends with its owner.
-struct AbortOnDrop(tokio::task::JoinHandle<()>);
-
-impl Drop for AbortOnDrop {
-    fn drop(&mut self) {
-        self.0.abort();
     }
 }
 

@@ -663,12 +663,9 @@ async fn put<T: serde::Serialize>(
     cmd: &T,
 ) -> ApiResult<()> {
     let payload = msg::encode_cmd(st.inner.cmd_header(), cmd);
-    st.inner
-        .session()
-        .put(keys::key(robot, topic), payload)
-        .congestion_control(zenoh::qos::CongestionControl::Block)
+    crate::bus::put_command(&st.inner.session(), keys::key(robot, topic), payload)
         .await
-        .map_err(|e| internal(format!("zenoh put: {e}")))
+        .map_err(internal)
 }
 
 fn accepted(sent: Value) -> (StatusCode, Json<Value>) {

@@ -8,7 +8,10 @@
 //!   event (what the WebSocket forwards), against a bare Zenoh subscriber on the same publisher.
 //! - link ([`link`]): pose latency and tile throughput through a station over TLS with mutual
 //!   authentication and access rules, against plain TCP.
+//! - fleet ([`fleet`]): N lightweight robots replaying a recorded `park` robot's tiles, with
+//!   poses at 10 Hz, into one station: merge lag, pose latency, the station's CPU and memory.
 
+pub mod fleet;
 pub mod link;
 
 use std::collections::HashMap;
@@ -55,12 +58,21 @@ pub struct BenchArgs {
     /// link: rounds (each TCP then TLS).
     #[arg(long, default_value_t = 2)]
     pub link_rounds: usize,
+    /// fleet: seconds of the `park` robot recorded (and replayed by every robot).
+    #[arg(long, default_value_t = 40.0)]
+    pub record_s: f64,
+    /// fleet: the scenario the recorded robot drives in.
+    #[arg(long, default_value = "config/scenarios/park.toml")]
+    pub scenario: std::path::PathBuf,
+    /// fleet-robots (internal): the station endpoint the robots connect to.
+    #[arg(long, hide = true)]
+    pub fleet_endpoint: Option<String>,
 }
 
 /// Benchmarks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum BenchWhat {
-    /// All three.
+    /// Merge, latency and link.
     All,
     /// Merge throughput.
     Merge,
@@ -68,10 +80,23 @@ pub enum BenchWhat {
     Latency,
     /// Pose latency and tile throughput over TLS against plain TCP.
     Link,
+    /// N robots replaying recorded `park` tiles and poses into one station (not part of `all`).
+    Fleet,
+    /// The robots' side of `fleet`, run by it as a child process.
+    #[value(hide = true)]
+    FleetRobots,
 }
 
 /// Runs the benchmarks, printing a summary to stderr and one JSON line to stdout.
 pub async fn run(a: BenchArgs) -> anyhow::Result<()> {
+    match a.what {
+        BenchWhat::Fleet => {
+            println!("{}", fleet::run(&a).await?);
+            return Ok(());
+        }
+        BenchWhat::FleetRobots => return fleet::robots_side(&a).await,
+        _ => {}
+    }
     let mut out = serde_json::Map::new();
     if matches!(a.what, BenchWhat::All | BenchWhat::Merge) {
         let n = a.tiles;
@@ -168,45 +193,70 @@ fn merge_bench(n: usize) -> anyhow::Result<serde_json::Value> {
     }
     let merge_only = t0.elapsed();
 
-    // What the station runs: its merge thread, fed encoded payloads through its queue, decoding,
-    // merging, re-encoding every changed merged tile and handing it to the store sink.
+    // What the station runs: its merge thread, fed encoded payloads through its queue, decoding
+    // on its pool, merging, re-encoding every changed merged tile and handing it to the store
+    // sink; with one decoding thread and with one per core.
+    let threads = crate::merge::default_threads();
+    let (one, _) = merge_pipeline(&encoded, 1);
+    let (pipeline, changed) = merge_pipeline(&encoded, threads);
+
+    let (r_dec, r_merge, r_pipe, r_one) = (
+        rate(n, decode),
+        rate(n, merge_only),
+        rate(n, pipeline),
+        rate(n, one),
+    );
+    eprintln!(
+        "merge: {n} tiles ({:.0} B each on the wire): station merge {r_pipe:.0} tiles/s with \
+         {threads} decoding threads, {r_one:.0} tiles/s with 1 ({:.2}x); (decode + merge + \
+         re-encode), merge step alone {r_merge:.0} tiles/s; baseline decode alone on one core \
+         {r_dec:.0} tiles/s -> the pool runs at {:.2}x one core's decode speed",
+        bytes as f64 / n as f64,
+        r_pipe / r_one,
+        r_pipe / r_dec
+    );
+    Ok(json!({
+        "tiles": n, "mean_tile_bytes": bytes as f64 / n as f64, "changed_tiles": changed,
+        "threads": threads, "pipeline_tiles_per_s": r_pipe,
+        "pipeline_1_thread_tiles_per_s": r_one, "threads_vs_1": r_pipe / r_one,
+        "merge_only_tiles_per_s": r_merge,
+        "baseline_decode_tiles_per_s": r_dec, "pipeline_vs_decode": r_pipe / r_dec,
+    }))
+}
+
+/// Time for `encoded` through a [`MergeWorker`] with `threads` decoding threads, and the number
+/// of changed tiles it handed to the sink.
+fn merge_pipeline(encoded: &[Vec<u8>], threads: usize) -> (Duration, usize) {
     let map = Arc::new(RwLock::new(MergedMap::default()));
     let changes = Arc::new(Mutex::new(0usize));
     let c2 = changes.clone();
-    let worker = MergeWorker::start(
+    let worker = MergeWorker::with_threads(
         map,
         Box::new(move |_, enc: Vec<u8>| {
             std::hint::black_box(enc);
             *c2.lock().unwrap_or_else(|p| p.into_inner()) += 1;
         }),
         Arc::new(AtomicU64::new(0)),
+        threads,
     );
-    let q = worker.sender();
-    let t0 = Instant::now();
-    for e in encoded {
-        q.send(MergeJob {
+    let jobs: Vec<MergeJob> = encoded
+        .iter()
+        .map(|e| MergeJob {
             datum_id: "d0".into(),
             robot: "bench".into(),
-            encoded: e,
-        });
+            key_index: None,
+            encoded: e.clone(),
+        })
+        .collect();
+    let q = worker.sender();
+    let t0 = Instant::now();
+    for j in jobs {
+        q.send(j);
     }
     worker.finish();
-    let pipeline = t0.elapsed();
+    let took = t0.elapsed();
     let changed = *changes.lock().unwrap_or_else(|p| p.into_inner());
-
-    let (r_dec, r_merge, r_pipe) = (rate(n, decode), rate(n, merge_only), rate(n, pipeline));
-    eprintln!(
-        "merge: {n} tiles ({:.0} B each on the wire): station merge thread {r_pipe:.0} tiles/s \
-         (decode + merge + re-encode), merge step alone {r_merge:.0} tiles/s; baseline decode \
-         alone {r_dec:.0} tiles/s -> the merge thread runs at {:.2}x decode speed",
-        bytes as f64 / n as f64,
-        r_pipe / r_dec
-    );
-    Ok(json!({
-        "tiles": n, "mean_tile_bytes": bytes as f64 / n as f64, "changed_tiles": changed,
-        "pipeline_tiles_per_s": r_pipe, "merge_only_tiles_per_s": r_merge,
-        "baseline_decode_tiles_per_s": r_dec, "pipeline_vs_decode": r_pipe / r_dec,
-    }))
+    (took, changed)
 }
 
 /// Median, p99 and max of latencies in microseconds.
@@ -261,8 +311,7 @@ async fn latency_bench(a: &BenchArgs) -> anyhow::Result<serde_json::Value> {
     .await
     .map_err(|e| anyhow::anyhow!("zenoh: {e}"))?;
 
-    type Sent = Arc<Mutex<HashMap<(usize, u32), Instant>>>;
-    let sent: Sent = Arc::default();
+    let sent: SentPoses = Arc::default();
     let bare_lat: Arc<Mutex<Vec<f64>>> = Arc::default();
     let (s2, b2) = (sent.clone(), bare_lat.clone());
     let _sub = bare
@@ -276,11 +325,10 @@ async fn latency_bench(a: &BenchArgs) -> anyhow::Result<serde_json::Value> {
             let Ok(p) = msg::decode::<Pose>(&sample.payload().to_bytes()) else {
                 return;
             };
-            let k = robot_number(rid.as_str());
             if let Some(t) = s2
                 .lock()
                 .unwrap_or_else(|p| p.into_inner())
-                .get(&(k, p.seq))
+                .get(&(rid.to_string(), p.seq))
             {
                 b2.lock()
                     .unwrap_or_else(|p| p.into_inner())
@@ -300,7 +348,7 @@ async fn latency_bench(a: &BenchArgs) -> anyhow::Result<serde_json::Value> {
             if v["type"] != "pose" {
                 continue;
             }
-            let k = robot_number(v["robot"].as_str().unwrap_or(""));
+            let k = v["robot"].as_str().unwrap_or("").to_string();
             let seq = v["pose"]["seq"].as_u64().unwrap_or(u64::MAX) as u32;
             if let Some(t) = s3.lock().unwrap_or_else(|p| p.into_inner()).get(&(k, seq)) {
                 l3.lock()
@@ -339,40 +387,25 @@ async fn latency_bench(a: &BenchArgs) -> anyhow::Result<serde_json::Value> {
     }
     tokio::time::sleep(Duration::from_millis(300)).await;
     let period = Duration::from_secs_f64(1.0 / a.rate_hz);
-    let warmup = a.robots * 3;
-    let mut tick = tokio::time::interval(period);
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    for i in 0..warmup + a.samples {
-        tick.tick().await;
-        let k = i % a.robots;
-        let seq = (i / a.robots) as u32;
-        let p = Pose {
-            t_unix_ms: station::now_unix_ms(),
-            seq,
-            x_m: i as f64 * 0.01,
-            y_m: 2.0,
-            z_m: 0.1,
-            yaw_rad: 0.3,
-            pitch_rad: 0.0,
-            roll_rad: 0.0,
-            v_mps: 0.8,
-            omega_rps: 0.0,
-            fix: FixState::RtkFixed,
-            lat_lon_deg: Some((48.2, 16.37)),
-        };
-        let bytes = msg::encode(&p);
-        if i >= warmup {
-            sent.lock()
-                .unwrap_or_else(|p| p.into_inner())
-                .insert((k, seq), Instant::now());
-        }
-        // As the robot bus publishes poses: best effort, dropped rather than queued when congested.
-        publisher
-            .put(keys::key(&ids[k], Topic::Pose), bytes)
-            .congestion_control(zenoh::qos::CongestionControl::Drop)
-            .await
-            .map_err(|e| anyhow::anyhow!("zenoh put: {e}"))?;
-    }
+    let robots: Vec<(zenoh::Session, RobotId)> = ids
+        .iter()
+        .map(|id| (publisher.clone(), id.clone()))
+        .collect();
+    let s4 = sent.clone();
+    send_poses(
+        &robots,
+        period,
+        a.robots * 3,
+        a.samples,
+        |id, seq, timed| {
+            if timed {
+                s4.lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .insert((id.to_string(), seq), Instant::now());
+            }
+        },
+    )
+    .await?;
     tokio::time::sleep(Duration::from_millis(500)).await;
     listener.abort();
     let _ = bare.close().await;
@@ -417,10 +450,52 @@ async fn latency_bench(a: &BenchArgs) -> anyhow::Result<serde_json::Value> {
     }))
 }
 
-fn robot_number(id: &str) -> usize {
-    id.strip_prefix("bench-")
-        .and_then(|n| n.parse().ok())
-        .unwrap_or(usize::MAX)
+/// When each timed pose was put, by (robot, seq).
+pub(crate) type SentPoses = Arc<Mutex<HashMap<(String, u32), Instant>>>;
+
+/// The synthetic pose loop of every pose benchmark (latency, link, fleet): `warmup + samples`
+/// poses round-robin over `robots` (a session and the robot it publishes as), one every
+/// `period`, each robot's `seq` counting up, put as the robot bus puts poses (best effort:
+/// dropped rather than queued when congested). `on_sent(robot, seq, timed)` runs just before
+/// each put; the first `warmup` are not timed.
+pub(crate) async fn send_poses(
+    robots: &[(zenoh::Session, RobotId)],
+    period: Duration,
+    warmup: usize,
+    samples: usize,
+    mut on_sent: impl FnMut(&RobotId, u32, bool),
+) -> anyhow::Result<()> {
+    anyhow::ensure!(!robots.is_empty(), "no robots to send poses for");
+    let mut tick = tokio::time::interval(period);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    for i in 0..warmup + samples {
+        tick.tick().await;
+        let k = i % robots.len();
+        let seq = (i / robots.len()) as u32;
+        let p = Pose {
+            t_unix_ms: station::now_unix_ms(),
+            seq,
+            x_m: i as f64 * 0.01,
+            y_m: 2.0,
+            z_m: 0.1,
+            yaw_rad: 0.3,
+            pitch_rad: 0.0,
+            roll_rad: 0.0,
+            v_mps: 0.8,
+            omega_rps: 0.0,
+            fix: FixState::RtkFixed,
+            lat_lon_deg: Some((48.2, 16.37)),
+        };
+        let bytes = msg::encode(&p);
+        let (session, id) = &robots[k];
+        on_sent(id, seq, i >= warmup);
+        session
+            .put(keys::key(id, Topic::Pose), bytes)
+            .congestion_control(zenoh::qos::CongestionControl::Drop)
+            .await
+            .map_err(|e| anyhow::anyhow!("zenoh put: {e}"))?;
+    }
+    Ok(())
 }
 
 #[cfg(test)]

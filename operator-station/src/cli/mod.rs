@@ -15,12 +15,12 @@ use std::time::Duration;
 
 use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
-use common::command::{check_goal, CommandLimits, RobotContext};
-use common::keys::{self, RobotId, Topic};
+use common::command::{check_goal, CommandLimits};
+use common::keys::{RobotId, Topic};
 use common::msg::{self, GoalCmd, GoalTarget, Session, StopCmd};
-use zenoh::query::ConsolidationMode;
 
 use crate::api::{self, AppState};
+use crate::bus::client::{self, alive_robots, put_and_close, robot_context};
 use crate::security::{self, RegisterWatch};
 use crate::station::{self, Station, StationOptions, DEFAULT_LISTEN_ENDPOINT};
 
@@ -895,30 +895,7 @@ fn tempfile_dir() -> anyhow::Result<PathBuf> {
 
 /// A short-lived Zenoh session for CLI commands (connects to the station's endpoint by default).
 async fn client_session(z: &ZenohArgs) -> anyhow::Result<zenoh::Session> {
-    let zc = zenoh_config(z, Role::Client)?;
-    zenoh::open(zc)
-        .await
-        .map_err(|e| anyhow::anyhow!("zenoh: {e}"))
-}
-
-async fn alive_robots(s: &zenoh::Session, wait: Duration) -> anyhow::Result<Vec<String>> {
-    let replies = s
-        .liveliness()
-        .get(keys::all_alive())
-        .timeout(wait)
-        .await
-        .map_err(|e| anyhow::anyhow!("liveliness query: {e}"))?;
-    let mut out = Vec::new();
-    while let Ok(r) = replies.recv_async().await {
-        if let Ok(sample) = r.result() {
-            if let Ok((id, Topic::Alive)) = keys::parse(sample.key_expr().as_str()) {
-                out.push(id.to_string());
-            }
-        }
-    }
-    out.sort();
-    out.dedup();
-    Ok(out)
+    client::open(zenoh_config(z, Role::Client)?).await
 }
 
 async fn robots(a: ClientArgs) -> anyhow::Result<()> {
@@ -936,19 +913,7 @@ async fn robots(a: ClientArgs) -> anyhow::Result<()> {
     }
     for id in alive {
         let rid = RobotId::new(id.clone())?;
-        let mut session: Option<Session> = None;
-        if let Ok(replies) = s
-            .get(keys::key(&rid, Topic::Session))
-            .consolidation(ConsolidationMode::None)
-            .timeout(wait)
-            .await
-        {
-            while let Ok(r) = replies.recv_async().await {
-                if let Ok(sample) = r.result() {
-                    session = msg::decode(&sample.payload().to_bytes()).ok();
-                }
-            }
-        }
+        let session: Option<Session> = client::robot_session_msg(&s, &rid, wait).await;
         println!(
             "{}",
             serde_json::json!({"robot": id, "online": true, "session": session})
@@ -983,25 +948,6 @@ async fn robot_session(c: &ClientArgs, robot: &str) -> anyhow::Result<zenoh::Ses
     Ok(s)
 }
 
-/// Sends one command in its envelope (this call's own sender id) and closes the session.
-async fn put_and_close<T: serde::Serialize>(
-    s: zenoh::Session,
-    rid: &RobotId,
-    topic: Topic,
-    cmd: &T,
-) -> anyhow::Result<()> {
-    let stamper = common::command::CommandStamper::new(station::sender_id(&s));
-    let payload = msg::encode_cmd(stamper.next(station::now_unix_ms()), cmd);
-    let r = s
-        .put(keys::key(rid, topic), payload)
-        .congestion_control(zenoh::qos::CongestionControl::Block)
-        .await
-        .map_err(|e| anyhow::anyhow!("zenoh put: {e}"));
-    tokio::time::sleep(Duration::from_millis(200)).await;
-    let _ = s.close().await;
-    r
-}
-
 /// Sends `cmd` to a robot that is online.
 async fn send_to_robot<T: serde::Serialize>(
     c: &ClientArgs,
@@ -1012,25 +958,6 @@ async fn send_to_robot<T: serde::Serialize>(
     let rid = RobotId::new(robot)?;
     let s = robot_session(c, robot).await?;
     put_and_close(s, &rid, topic, cmd).await
-}
-
-/// The robot's position from one of its poses (it publishes them at 10 Hz), for the goal
-/// contract; empty when none comes within a second.
-async fn robot_context(s: &zenoh::Session, rid: &RobotId) -> RobotContext {
-    let Ok(sub) = s.declare_subscriber(keys::key(rid, Topic::Pose)).await else {
-        return RobotContext::default();
-    };
-    let deadline = tokio::time::Instant::now() + Duration::from_secs(1);
-    while let Ok(Ok(sample)) = tokio::time::timeout_at(deadline, sub.recv_async()).await {
-        if let Ok(p) = msg::decode::<msg::Pose>(&sample.payload().to_bytes()) {
-            return RobotContext {
-                position_m: Some((p.x_m, p.y_m)),
-                lat_lon_deg: p.lat_lon_deg,
-                mapped: None,
-            };
-        }
-    }
-    RobotContext::default()
 }
 
 async fn goal(a: GoalArgs) -> anyhow::Result<()> {

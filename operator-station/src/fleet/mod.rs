@@ -128,7 +128,7 @@ pub struct RobotState {
     /// When the last path was stored.
     pub last_path_store: Option<(Instant, u32)>,
     /// Tiles received before the session was known (merged once it is).
-    pub pending_tiles: Vec<Vec<u8>>,
+    pub pending_tiles: Vec<(common::grid::TileIndex, Vec<u8>)>,
 }
 
 /// Longest list of pending tiles kept per robot while its session is unknown.

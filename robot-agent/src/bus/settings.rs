@@ -2,6 +2,8 @@
 
 use std::path::PathBuf;
 
+pub use common::bus_config::LEASE_MS;
+use common::bus_config::{terranav_defaults, DefaultListen, SessionPlan};
 use common::command::ReplayWindow;
 use common::keys::RobotId;
 use common::security::CertFiles;
@@ -52,8 +54,8 @@ impl ZenohSettings {
     }
 
     /// Builds the Zenoh config: the file (or terranav defaults), multicast scouting off, short
-    /// lease so a vanished peer is declared gone within 2 s, fast reconnect, then the overrides,
-    /// then TLS when certificates are given. Refuses plain endpoints off loopback (and, with
+    /// lease so a vanished peer is declared gone within 2 s, fast reconnect, then the overrides
+    /// (all from [`common::bus_config`], shared with the station), then TLS when certificates are given. Refuses plain endpoints off loopback (and, with
     /// certificates, anything but `tls/`).
     pub fn to_config(&self) -> Result<zenoh::Config, BusError> {
         let c = self.build_config()?;
@@ -65,44 +67,28 @@ impl ZenohSettings {
         let mut c = match &self.file {
             Some(f) => zenoh::Config::from_file(f)
                 .map_err(|e| BusError::Config(format!("{}: {e}", f.display())))?,
-            None => {
-                let mut c = zenoh::Config::default();
-                apply_terranav_defaults(&mut c)?;
-                c
-            }
+            None => zenoh::Config::default(),
         };
-        let set = |c: &mut zenoh::Config, k: &str, v: &str| {
-            c.insert_json5(k, v)
-                .map_err(|e| BusError::Config(format!("{k} = {v}: {e}")))
+        // The mode only without a file (a file's own `mode` wins).
+        let mode = match (self.file.is_none(), self.mode.unwrap_or_default()) {
+            (false, _) => None,
+            (true, ZenohMode::Peer) => Some("peer"),
+            (true, ZenohMode::Client) => Some("client"),
         };
-        if self.file.is_none() {
-            let mode = match self.mode.unwrap_or_default() {
-                ZenohMode::Peer => "\"peer\"",
-                ZenohMode::Client => "\"client\"",
-            };
-            set(&mut c, "mode", mode)?;
-        }
-        // Whatever the file says, never scout by multicast: a fresh machine needs no network set-up
-        // and tests on one host must not find each other.
-        set(&mut c, "scouting/multicast/enabled", "false")?;
-        if !self.connect.is_empty() {
-            let v = serde_json::to_string(&self.connect)
-                .map_err(|e| BusError::Config(e.to_string()))?;
-            set(&mut c, "connect/endpoints", &v)?;
-        }
-        if !self.listen.is_empty() {
-            let v =
-                serde_json::to_string(&self.listen).map_err(|e| BusError::Config(e.to_string()))?;
-            set(&mut c, "listen/endpoints", &v)?;
-        } else if self.file.is_none() && self.tls.is_some() {
+        let plan = SessionPlan {
+            file_given: self.file.is_some(),
+            mode,
+            listen: &self.listen,
+            connect: &self.connect,
             // A secure robot connects to the station and needs no listener; `--listen tls/...`
             // lets stations link to it directly.
-            set(&mut c, "listen/endpoints", "[]")?;
-        } else if self.file.is_none() {
-            // Zenoh's peer default listens on every interface (`tcp/[::]:0`); the robot connects
-            // to the station, so it only needs a loopback port for peers on its own machine.
-            set(&mut c, "listen/endpoints", "[\"tcp/127.0.0.1:0\"]")?;
-        }
+            default_listen: if self.tls.is_some() {
+                DefaultListen::Nowhere
+            } else {
+                DefaultListen::Loopback
+            },
+        };
+        apply(&mut c, plan.settings())?;
         if let Some(files) = &self.tls {
             secure::apply_tls(&mut c, files)?;
         }
@@ -110,28 +96,18 @@ impl ZenohSettings {
     }
 }
 
-/// Link lease (ms): a peer silent for this long is dropped and its liveliness tokens vanish.
-/// Four keep-alives per lease; 1.5 s keeps detection of a frozen or unplugged robot under 2 s
-/// (a killed process closes its TCP socket and is detected at once).
-pub const LEASE_MS: u64 = 1500;
-
-/// The terranav defaults that `config/zenoh/*.json5` also spell out.
-pub fn apply_terranav_defaults(c: &mut zenoh::Config) -> Result<(), BusError> {
-    let kv = [
-        ("scouting/multicast/enabled", "false".to_string()),
-        ("transport/link/tx/lease", LEASE_MS.to_string()),
-        ("transport/link/tx/keep_alive", "4".to_string()),
-        // Retry a lost endpoint every 0.5-1 s so a restarted station is rejoined quickly.
-        (
-            "connect/retry",
-            "{period_init_ms: 500, period_max_ms: 1000, period_increase_factor: 1.5}".to_string(),
-        ),
-    ];
+fn apply(c: &mut zenoh::Config, kv: Vec<(&str, String)>) -> Result<(), BusError> {
     for (k, v) in kv {
         c.insert_json5(k, &v)
             .map_err(|e| BusError::Config(format!("{k} = {v}: {e}")))?;
     }
     Ok(())
+}
+
+/// The terranav defaults that `config/zenoh/*.json5` also spell out (shared with the station:
+/// [`common::bus_config::terranav_defaults`]).
+pub fn apply_terranav_defaults(c: &mut zenoh::Config) -> Result<(), BusError> {
+    apply(c, terranav_defaults())
 }
 
 /// Everything [`RobotBus::open`](super::RobotBus::open) needs.

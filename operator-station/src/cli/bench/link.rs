@@ -17,11 +17,11 @@ use std::time::{Duration, Instant};
 
 use common::grid::{encode_tile, TileIndex};
 use common::keys::{self, RobotId, Topic};
-use common::msg::{self, FixState, Pose};
+use common::msg;
 use common::security::{self, CertFiles, FleetDir};
 use serde_json::json;
 
-use super::{free_endpoint, rate, robot_like_tile, stats};
+use super::{free_endpoint, rate, robot_like_tile, send_poses, stats, SentPoses};
 use crate::station::{self, Station, StationOptions};
 
 /// Plain TCP or TLS.
@@ -214,8 +214,7 @@ async fn one_round(
         .await
         .map_err(zerr)?;
     let mut events = st.inner.events.subscribe();
-    type Sent = Arc<Mutex<HashMap<(String, u32), Instant>>>;
-    let sent: Sent = Arc::default();
+    let sent: SentPoses = Arc::default();
     let lat: Arc<Mutex<Vec<f64>>> = Arc::default();
     let merged = Arc::new(AtomicUsize::new(0));
     let mg_done: Arc<Mutex<Option<Instant>>> = Arc::default();
@@ -272,39 +271,17 @@ async fn one_round(
 
     // Poses: each robot at 10 Hz, interleaved, as on a fleet.
     let period = Duration::from_secs_f64(0.1 / ids.len() as f64);
-    let warmup = ids.len() * 3;
-    let mut tick = tokio::time::interval(period);
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    for i in 0..warmup + samples {
-        tick.tick().await;
-        let k = i % ids.len();
-        let seq = (i / ids.len()) as u32;
-        let p = Pose {
-            t_unix_ms: station::now_unix_ms(),
-            seq,
-            x_m: i as f64 * 0.01,
-            y_m: 2.0,
-            z_m: 0.1,
-            yaw_rad: 0.3,
-            pitch_rad: 0.0,
-            roll_rad: 0.0,
-            v_mps: 0.8,
-            omega_rps: 0.0,
-            fix: FixState::RtkFixed,
-            lat_lon_deg: Some((48.2, 16.37)),
-        };
-        let bytes = msg::encode(&p);
-        if i >= warmup {
-            sent.lock()
+    let robots: Vec<(zenoh::Session, RobotId)> =
+        sessions.iter().cloned().zip(ids.iter().cloned()).collect();
+    let s4 = sent.clone();
+    send_poses(&robots, period, ids.len() * 3, samples, |id, seq, timed| {
+        if timed {
+            s4.lock()
                 .unwrap_or_else(|p| p.into_inner())
-                .insert((ids[k].to_string(), seq), Instant::now());
+                .insert((id.to_string(), seq), Instant::now());
         }
-        sessions[k]
-            .put(keys::key(&ids[k], Topic::Pose), bytes)
-            .congestion_control(zenoh::qos::CongestionControl::Drop)
-            .await
-            .map_err(zerr)?;
-    }
+    })
+    .await?;
     tokio::time::sleep(Duration::from_millis(300)).await;
 
     // Tiles: every put a newer observation of one of 400 tiles, so each changes its merged tile.
