@@ -13,6 +13,7 @@ pub mod fleet;
 pub mod merge;
 pub mod missions;
 pub mod pki;
+pub mod pyramid;
 pub mod security;
 pub mod station;
 pub mod store;
