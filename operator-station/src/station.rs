@@ -883,6 +883,7 @@ impl Station {
         let sink_events = events.clone();
         let sink_store = Mutex::new(store.sender());
         let pyramid = Arc::new(Mutex::new(crate::pyramid::Pyramid::new()));
+        crate::pyramid::warm_in_background(map.clone(), pyramid.clone());
         let sink_pyramid = pyramid.clone();
         let merge = MergeWorker::start(
             map.clone(),
