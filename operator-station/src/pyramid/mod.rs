@@ -176,7 +176,7 @@ pub fn mark_changed(pyramid: &Mutex<Pyramid>, datum_id: &str, index: TileIndex) 
 }
 
 /// Builds every datum's whole pyramid on a thread of its own (at station start: the first
-/// browser view of a restored site then only encodes PNGs; ~0.4 s of one core for a 1 km² site).
+/// browser view of a restored site then only encodes PNGs; ~0.2 s of one core for a 1 km² site).
 pub fn warm_in_background(map: Arc<RwLock<MergedMap>>, pyramid: Arc<Mutex<Pyramid>>) {
     let spawned = std::thread::Builder::new()
         .name("pyramid-warm".into())
