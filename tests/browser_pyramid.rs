@@ -35,9 +35,7 @@ fn cell_at(tx: i32, ty: i32, c: u16, r: u16) -> CellState {
     let x = tx * 64 + i32::from(c);
     let y = ty * 64 + i32::from(r);
     let h = (x.wrapping_mul(73_856_093) ^ y.wrapping_mul(19_349_663)).rem_euclid(4096);
-    if x.rem_euclid(500) == 0 || y.rem_euclid(500) == 0 {
-        CellState::Obstacle
-    } else if h == 0 {
+    if x.rem_euclid(500) == 0 || y.rem_euclid(500) == 0 || h == 0 {
         CellState::Obstacle
     } else if h < 6 {
         CellState::Inflated
