@@ -87,14 +87,19 @@ const state = {
   datumManual: "", // "" = follow the selected robot's datum
   datumId: null, // datum currently drawn
   tileMeta: null, // {cell_size_m, tile_cells}
-  tiles: new Map(), // "tx,ty" -> {version, overlay, loading}
+  tileLayer: null, // the pyramid's L.TileLayer of the drawn datum
+  tileVersions: new Map(), // "tx,ty" -> merged tile version last seen
+  tileBumps: new Map(), // "level/tx/ty" -> reload counter of a changed pyramid tile
+  touched: new Set(), // "tx,ty" of merged tiles changed since the last reload
+  touchTimer: null,
+  tileLoads: [], // {t_ms, level, settled, view_m} each time the pyramid layer finished loading its visible tiles
   selected: null,
   goalMode: false,
   follow: false,
   routes: [],
   routeLayers: new Map(), // route_id -> polyline
   sessions: [],
-  trackLayers: new Map(), // session_id -> {layer, datum_id}
+  trackLayers: new Map(), // session_id -> {layer, datum_id, robot, points, scrubT, marker}
   wsUp: false,
   stationDownSince: null, // local ms when the station stopped answering (null: it answers)
   fittedDatum: null,
@@ -214,53 +219,129 @@ map.on("click", (ev) => {
 });
 
 // ----- tiles ---------------------------------------------------------------------------------
+// The merged map is one L.TileLayer over the station's zoom pyramid
+// (`/api/map/{datum}/pyramid/{level}/{tx}/{ty}.png`, operator-station/src/pyramid): level 0 is a
+// merged tile, level L the overview of 2^L x 2^L of them, every image tile_cells pixels wide.
+// In CRS.Simple (2^zoom pixels per metre) a layer tile of `side0 * 2^z0` pixels covers one merged
+// tile (side0 metres) at zoom z0, and 2^L of them at zoom z0 - L: Leaflet's tile coordinates at
+// zoom z are the pyramid's at level z0 - z (y flipped: Leaflet's rows grow southwards).
+// Beyond z0 Leaflet scales level 0 up; below z0 - PYRAMID_MAX_LEVEL it scales the top down.
 
-function tileUrl(datumId, tx, ty, version) {
-  return withToken(`/api/map/${enc(datumId)}/tile/${tx}/${ty}.png?v=${version}`);
+const PYRAMID_MAX_LEVEL = 10;
+/** Transparent 1x1 GIF for tiles without map beneath (the station answers 404). */
+const EMPTY_TILE = "data:image/gif;base64,R0lGODlhAQABAAAAACH5BAEKAAEALAAAAAABAAEAAAICTAEAOw==";
+let tileBumps = 0; // makes a changed tile's URL new, so that the browser loads it again
+
+/** Native zoom of level 0 and the layer's tile size in pixels for this lattice. */
+function pyramidGeometry(meta) {
+  const side0 = meta.tile_cells * meta.cell_size_m;
+  // Layer tiles of 128-256 screen pixels at their native zoom: few requests, little upscaling.
+  const z0 = Math.max(0, Math.ceil(Math.log2(128 / side0)));
+  return { side0, z0, tileSize: side0 * 2 ** z0 };
 }
 
-function tileBounds(tx, ty) {
+/** Pyramid level and tile of Leaflet tile coordinates {x, y, z} (z clamped to the native range). */
+function pyramidIndex(layer, coords) {
+  return { level: layer.options.z0 - coords.z, tx: coords.x, ty: -coords.y - 1 };
+}
+
+const PyramidLayer = L.TileLayer.extend({
+  createTile(coords, done) {
+    const img = L.TileLayer.prototype.createTile.call(this, coords, done);
+    img.classList.add("map-tile");
+    return img;
+  },
+  getTileUrl(coords) {
+    const { level, tx, ty } = pyramidIndex(this, coords);
+    const bump = state.tileBumps.get(`${level}/${tx}/${ty}`);
+    const url = `/api/map/${enc(this.options.datumId)}/pyramid/${level}/${tx}/${ty}.png` + (bump ? `?v=${bump}` : "");
+    return withToken(url);
+  },
+});
+
+/** The map's extent in metres as Leaflet bounds (tiles outside are never asked for). */
+function boundsOf(b) {
+  return L.latLngBounds(ll(b[0], b[1]), ll(b[2], b[3]));
+}
+
+/** Draws the pyramid of the drawn datum (once its lattice is known). */
+function showPyramid(bounds) {
+  const g = pyramidGeometry(state.tileMeta);
+  state.tileLayer = new PyramidLayer("", {
+    datumId: state.datumId,
+    z0: g.z0,
+    tileSize: g.tileSize,
+    maxNativeZoom: g.z0,
+    minNativeZoom: g.z0 - PYRAMID_MAX_LEVEL,
+    // A GridLayer hides itself outside [minZoom, maxZoom] (default [0, 18]); the map goes to -4.
+    minZoom: map.getMinZoom(),
+    maxZoom: map.getMaxZoom(),
+    bounds,
+    pane: "tilesPane",
+    errorTileUrl: EMPTY_TILE,
+    updateWhenZooming: false,
+    keepBuffer: 1,
+  }).addTo(map);
+  // When every visible tile has loaded (ms since the page's navigation start, and the level):
+  // the browser test's "first full view", also handy in the console.
+  const layer = state.tileLayer;
+  layer.on("load", () => {
+    if (state.tileLayer !== layer) return;
+    const b = map.getBounds();
+    // settled: the loaded tiles are those of the map's zoom (not the last ones of a zoom change)
+    const settled = layer._tileZoom === layer._clampZoom(Math.round(map.getZoom()));
+    state.tileLoads.push({ t_ms: performance.now(), level: g.z0 - layer._tileZoom, settled, view_m: [b.getWest(), b.getSouth(), b.getEast(), b.getNorth()] });
+  });
+}
+
+/** Merged tile (tx, ty) changed: the shown pyramid tile above it is loaded again (coalesced). */
+function touchTile(tx, ty) {
+  const layer = state.tileLayer;
+  if (!layer || !state.tileMeta) return;
+  // A tile outside the drawn extent: grow it, so that the layer asks for the new area.
   const side = state.tileMeta.tile_cells * state.tileMeta.cell_size_m;
-  return L.latLngBounds(ll(tx * side, ty * side), ll((tx + 1) * side, (ty + 1) * side));
+  const tb = boundsOf([tx * side, ty * side, (tx + 1) * side, (ty + 1) * side]);
+  if (!layer.options.bounds || !layer.options.bounds.contains(tb)) {
+    layer.options.bounds = layer.options.bounds ? L.latLngBounds(layer.options.bounds).extend(tb) : tb;
+    if (layer._map) layer._update(); // Leaflet has no public "bounds changed"
+  }
+  state.touched.add(`${tx},${ty}`);
+  if (!state.touchTimer) state.touchTimer = setTimeout(flushTouched, 250);
 }
 
-/** Shows tile (tx, ty) at `version`; the new PNG is preloaded so a live update never blinks. */
-function upsertTile(tx, ty, version) {
-  if (!state.tileMeta || !state.datumId) return;
-  const key = `${tx},${ty}`;
-  let t = state.tiles.get(key);
-  if (t && t.version >= version) return;
-  const datumId = state.datumId;
-  const url = tileUrl(datumId, tx, ty, version);
-  if (!t) {
-    t = { version, overlay: null };
-    state.tiles.set(key, t);
+function flushTouched() {
+  state.touchTimer = null;
+  const layer = state.tileLayer;
+  const touched = [...state.touched];
+  state.touched.clear();
+  const z = layer && layer._tileZoom;
+  if (z === undefined) return;
+  const level = layer.options.z0 - z;
+  const done = new Set();
+  for (const key of touched) {
+    const [tx, ty] = key.split(",").map(Number);
+    const [px, py] = [Math.floor(tx / 2 ** level), Math.floor(ty / 2 ** level)];
+    const id = `${level}/${px}/${py}`;
+    if (done.has(id)) continue;
+    done.add(id);
+    state.tileBumps.set(id, ++tileBumps);
+    const coords = L.point(px, -py - 1);
+    coords.z = z;
+    const t = layer._tiles[layer._tileCoordsToKey(coords)];
+    if (t && t.el) t.el.src = layer.getTileUrl(coords);
   }
-  t.version = version;
-  const img = new Image();
-  img.onload = () => {
-    // A newer version or a datum switch may have overtaken this load.
-    if (state.datumId !== datumId || state.tiles.get(key) !== t || t.version !== version) return;
-    if (!t.overlay) {
-      t.overlay = L.imageOverlay(url, tileBounds(tx, ty), {
-        pane: "tilesPane",
-        className: "map-tile",
-        interactive: false,
-      }).addTo(map);
-    } else {
-      t.overlay.setUrl(url);
-    }
-  };
-  img.onerror = () => logMsg("warn", `tile ${datumId} ${tx},${ty} v${version} failed to load`);
-  img.src = url;
 }
 
 function clearTiles() {
-  for (const t of state.tiles.values()) if (t.overlay) t.overlay.remove();
-  state.tiles.clear();
+  if (state.tileLayer) state.tileLayer.remove();
+  state.tileLayer = null;
+  state.tileVersions.clear();
+  state.tileBumps.clear();
+  state.touched.clear();
 }
 
-/** Reloads the tile index of the drawn datum (on connect, datum switch, and as a slow safety net). */
+/** Reloads the tile index of the drawn datum (on connect, datum switch, and as a slow safety net
+ *  for missed live events: a tile whose version moved is loaded again). */
 async function refreshTiles() {
   const datumId = state.datumId;
   if (!datumId) return;
@@ -271,10 +352,29 @@ async function refreshTiles() {
       clearTiles();
       state.tileMeta = { cell_size_m: idx.cell_size_m, tile_cells: idx.tile_cells };
     }
+    if (!state.tileLayer) {
+      const side = idx.tile_cells * idx.cell_size_m;
+      let b = null;
+      for (const t of idx.tiles) {
+        state.tileVersions.set(`${t.tx},${t.ty}`, t.version);
+        const tb = boundsOf([t.tx * side, t.ty * side, (t.tx + 1) * side, (t.ty + 1) * side]);
+        b = b ? b.extend(tb) : tb;
+      }
+      showPyramid(b || undefined);
+      return;
+    }
     for (const t of idx.tiles) upsertTile(t.tx, t.ty, t.version);
   } catch (e) {
     logMsg("warn", e.message);
   }
+}
+
+/** Merged tile (tx, ty) is now at `version` (live event or index). */
+function upsertTile(tx, ty, version) {
+  const key = `${tx},${ty}`;
+  if ((state.tileVersions.get(key) ?? -1) >= version) return;
+  state.tileVersions.set(key, version);
+  touchTile(tx, ty);
 }
 
 /** Switches the drawn datum: tiles, robots, tracks and routes of other datums are hidden. */
@@ -288,6 +388,7 @@ function setDatum(datumId) {
   for (const [id, t] of state.trackLayers) {
     if (t.datum_id !== datumId) {
       t.layer.remove();
+      if (t.marker) t.marker.remove();
       state.trackLayers.delete(id);
     }
   }
@@ -1114,20 +1215,64 @@ async function refreshSessions() {
 }
 
 function renderSessions() {
+  // Re-rendering under a dragged slider would end the drag.
+  if (document.activeElement && document.activeElement.dataset && document.activeElement.dataset.act === "scrub") return;
   if (!state.sessions.length) {
     sessionList.innerHTML = `<div class="muted">no sessions</div>`;
     return;
   }
   sessionList.innerHTML = state.sessions.slice(0, 50).map((s) => {
-    const shown = state.trackLayers.has(s.session_id);
+    const shown = state.trackLayers.get(s.session_id);
     const start = new Date(s.start_unix_ms);
     const dur = s.last_unix_ms && s.start_unix_ms ? fmtAge(s.last_unix_ms - s.start_unix_ms) : "–";
     return `<div class="item" data-session="${esc(s.session_id)}">
       <div class="item-head">${s.live ? `<span class="live">LIVE</span>` : ""} <b>${esc(s.robot)}</b>
         <span class="muted small">${start.toLocaleDateString()} ${start.toTimeString().slice(0, 5)} · ${dur} · ${esc(s.source)} · ${esc(s.datum_id)}</span></div>
       <div class="row tight"><button data-act="track" class="${shown ? "active" : ""}">${shown ? "hide track" : "show track"}</button>
-      <span class="muted small mono">${esc(s.session_id)}</span></div></div>`;
+      <span class="muted small mono">${esc(s.session_id)}</span></div>${shown ? scrubHtml(shown) : ""}</div>`;
   }).join("");
+}
+
+// ----- time scrubbing of a shown track ------------------------------------------------------------
+// The slider shows the track as it was at time t: the points up to t and the robot's pose then.
+// The map stays the latest merged map: the station stores only the newest version of each tile
+// (see README, "Time scrubbing"), so there is no older map to show.
+
+function scrubHtml(t) {
+  const first = t.points[0][0];
+  const last = t.points[t.points.length - 1][0];
+  const at = t.scrubT ?? last;
+  return `<div class="row tight scrub"><input type="range" data-act="scrub" min="${first}" max="${last}" step="100" value="${at}">
+    <span class="small mono scrub-time">${scrubLabel(first, at)}</span></div>
+    <div class="muted small">map: latest (tile history is not stored)</div>`;
+}
+
+function scrubLabel(first, t) {
+  return `${new Date(t).toTimeString().slice(0, 8)} (+${((t - first) / 1000).toFixed(1)} s)`;
+}
+
+/** Draws session `id`'s track as it was at `t` (Unix ms). */
+function scrubTrack(id, t) {
+  const tr = state.trackLayers.get(id);
+  if (!tr) return;
+  tr.scrubT = t;
+  // Points are in time order: the last one at or before t ends the drawn track.
+  let lo = 0;
+  let hi = tr.points.length;
+  while (lo < hi) {
+    const mid = (lo + hi) >> 1;
+    if (tr.points[mid][0] <= t) lo = mid + 1;
+    else hi = mid;
+  }
+  const upto = tr.points.slice(0, Math.max(1, lo));
+  tr.layer.setLatLngs(upto.map((p) => ll(p[1], p[2])));
+  const p = upto[upto.length - 1];
+  if (!tr.marker) {
+    tr.marker = L.circleMarker(ll(p[1], p[2]), { pane: "tracksPane", radius: 6, className: "scrub-pose" }).addTo(map);
+  } else tr.marker.setLatLng(ll(p[1], p[2]));
+  tr.marker.bindTooltip(`${esc(tr.robot)} at ${new Date(p[0]).toTimeString().slice(0, 8)}`);
+  const label = sessionList.querySelector(`.item[data-session="${CSS.escape(id)}"] .scrub-time`);
+  if (label) label.textContent = scrubLabel(tr.points[0][0], t);
 }
 
 sessionList.addEventListener("click", (ev) => {
@@ -1136,10 +1281,16 @@ sessionList.addEventListener("click", (ev) => {
   if (btn && item) toggleTrack(item.dataset.session);
 });
 
+sessionList.addEventListener("input", (ev) => {
+  const item = ev.target.closest(".item");
+  if (item && ev.target.dataset.act === "scrub") scrubTrack(item.dataset.session, Number(ev.target.value));
+});
+
 async function toggleTrack(id) {
   const existing = state.trackLayers.get(id);
   if (existing) {
     existing.layer.remove();
+    if (existing.marker) existing.marker.remove();
     state.trackLayers.delete(id);
     renderSessions();
     return;
@@ -1159,7 +1310,7 @@ async function toggleTrack(id) {
     const layer = L.polyline(pts, { pane: "tracksPane", className: "session-track" })
       .bindTooltip(`${esc(tr.robot)} · ${esc(id)}`, { sticky: true })
       .addTo(map);
-    state.trackLayers.set(id, { layer, datum_id: tr.datum_id });
+    state.trackLayers.set(id, { layer, datum_id: tr.datum_id, robot: tr.robot, points: tr.points, scrubT: null, marker: null });
     map.fitBounds(layer.getBounds(), { padding: [30, 30], maxZoom: 4 });
     renderSessions();
   } catch (e) {

@@ -14,6 +14,7 @@ pub mod fleet;
 pub mod merge;
 pub mod missions;
 pub mod pki;
+pub mod pyramid;
 /// Secure links, now in the station's bus ([`bus::secure`]).
 pub use bus::secure as security;
 pub mod station;

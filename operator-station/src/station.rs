@@ -154,6 +154,8 @@ pub struct Inner {
     pub datums: Mutex<Datums>,
     /// Merged map.
     pub map: Arc<RwLock<MergedMap>>,
+    /// Overview tiles of the merged map for the browser (rebuilt as the merge changes tiles).
+    pub pyramid: Arc<Mutex<crate::pyramid::Pyramid>>,
     /// Live events (JSON text) for WebSocket clients.
     pub events: broadcast::Sender<Arc<str>>,
     /// Payloads on robot keys that failed to decode.
@@ -782,9 +784,13 @@ impl Station {
         let store_tx = store.sender();
         let sink_events = events.clone();
         let sink_store = Mutex::new(store.sender());
+        let pyramid = Arc::new(Mutex::new(crate::pyramid::Pyramid::new()));
+        crate::pyramid::warm_in_background(map.clone(), pyramid.clone());
+        let sink_pyramid = pyramid.clone();
         let merge = MergeWorker::start(
             map.clone(),
             Box::new(move |ch: TileChange, enc: Vec<u8>| {
+                crate::pyramid::mark_changed(&sink_pyramid, &ch.datum_id, ch.index);
                 let _ = sink_store
                     .lock()
                     .unwrap_or_else(|p| p.into_inner())
@@ -810,6 +816,7 @@ impl Station {
             fleet: Mutex::new(Fleet::default()),
             datums: Mutex::new(datums),
             map,
+            pyramid,
             events,
             decode_errors,
             db: opts.db.clone(),

@@ -1,10 +1,11 @@
 //! axum REST + WebSocket API for the browser UI, exactly as `operator-station/API.md`, and the
 //! UI's static files, served over TLS by [`tls`] when asked (always off loopback). Zones,
-//! missions, alerts and the basemap have their own modules.
+//! missions, alerts, the basemap and the map's zoom pyramid have their own modules.
 
 mod alerts;
 mod basemap;
 mod missions;
+mod pyramid;
 pub mod tls;
 mod zones;
 
@@ -107,6 +108,10 @@ pub fn router(state: AppState, web: Option<PathBuf>) -> Router {
         .route("/api/datums", get(datums))
         .route("/api/map/{datum_id}/tiles", get(tiles_index))
         .route("/api/map/{datum_id}/tile/{tx}/{typng}", get(tile_png))
+        .route(
+            "/api/map/{datum_id}/pyramid/{level}/{tx}/{typng}",
+            get(pyramid::tile),
+        )
         .route("/api/sessions", get(sessions))
         .route("/api/sessions/{session_id}/track", get(track))
         .route("/api/routes", get(routes))

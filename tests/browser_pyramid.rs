@@ -1,0 +1,187 @@
+//! The map of a whole site in the browser (issue 20): a station whose database holds a synthetic
+//! 1 km² merged map (78 x 78 = 6 084 merged tiles of 12.8 m, 0.2 m cells, written straight into
+//! the station's SQLite store) and a past session with a pose track; Debian's chromium driven by
+//! `node web/tests/pyramid.mjs` opens the UI and measures the time to the first full view of the
+//! site and the tile requests it takes (printed, never asserted on time), checks that zooming in
+//! reaches full resolution (pyramid level 0), and scrubs the session's track in time.
+//!
+//! Skips with a notice only when `/usr/bin/chromium` or `web/node_modules` is missing; CI installs
+//! both.
+
+mod station_support;
+
+use std::fs::File;
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use common::grid::{encode_tile, Cell, CellState, Lattice, Tile, TileIndex};
+use operator_station::store::{DatumRow, SessionRow, StoreOp, StoreWriter};
+use station_support::{Ports, Station};
+use support::{workspace_root, KillOnDrop};
+
+const CHROMIUM: &str = "/usr/bin/chromium";
+/// Upper bound for the whole node script; its own steps time out well before this.
+const UI_TEST_LIMIT: Duration = Duration::from_secs(150);
+/// Merged tiles per side: 78 x 12.8 m = 998 m.
+const SIDE_TILES: i32 = 78;
+/// Start of the synthetic session, Unix ms.
+const SESSION_START_MS: u64 = 1_790_000_000_000;
+
+/// Cell (c, r) of tile (tx, ty): ground everywhere, walls every 100 m, scattered trees (a cell
+/// obstacle ringed by inflated cells), and nothing known in a few pockets.
+fn cell_at(tx: i32, ty: i32, c: u16, r: u16) -> CellState {
+    let x = tx * 64 + i32::from(c);
+    let y = ty * 64 + i32::from(r);
+    let h = (x.wrapping_mul(73_856_093) ^ y.wrapping_mul(19_349_663)).rem_euclid(4096);
+    if x.rem_euclid(500) == 0 || y.rem_euclid(500) == 0 || h == 0 {
+        CellState::Obstacle
+    } else if h < 6 {
+        CellState::Inflated
+    } else if (x / 700 + y / 900).rem_euclid(11) == 0 {
+        CellState::Unknown
+    } else {
+        CellState::Traversable
+    }
+}
+
+fn synthetic_tile(tx: i32, ty: i32) -> Tile {
+    let mut t = Tile::new(TileIndex { tx, ty }, Lattice::default());
+    t.version = 1;
+    for r in 0..64u16 {
+        for c in 0..64u16 {
+            *t.get_mut(c, r) = Cell {
+                state: cell_at(tx, ty, c, r),
+                cost: 0,
+                height_cm: 0,
+                hits: 3,
+                stamp_s: 1000,
+            };
+        }
+    }
+    t
+}
+
+/// The station database: datum `d0`, the site's tiles, one session with a 10-minute track.
+fn write_site(db: &Path) -> anyhow::Result<usize> {
+    let w = StoreWriter::start(db)?;
+    let tx = w.sender();
+    tx.send(StoreOp::Datum(DatumRow {
+        datum_id: "d0".into(),
+        lat_deg: Some(50.08),
+        lon_deg: Some(14.42),
+        h_m: Some(240.0),
+        cell_size_m: 0.2,
+        tile_cells: 64,
+    }))?;
+    let half = SIDE_TILES / 2;
+    let mut n = 0;
+    for ty in -half..SIDE_TILES - half {
+        for txi in -half..SIDE_TILES - half {
+            let t = synthetic_tile(txi, ty);
+            tx.send(StoreOp::Tile {
+                datum_id: "d0".into(),
+                tx: txi,
+                ty,
+                version: 1,
+                data: encode_tile(&t),
+            })?;
+            n += 1;
+        }
+    }
+    let session_id = "husky-1-past".to_string();
+    tx.send(StoreOp::Session {
+        row: SessionRow {
+            session_id: session_id.clone(),
+            robot: "husky-1".into(),
+            start_unix_ms: SESSION_START_MS,
+            last_unix_ms: SESSION_START_MS + 600_000,
+            datum_id: "d0".into(),
+            source: "test".into(),
+        },
+        json: "{}".into(),
+    })?;
+    // A loop around the site's middle, one point a second.
+    for i in 0..600u64 {
+        let a = i as f64 / 600.0 * std::f64::consts::TAU;
+        tx.send(StoreOp::Track {
+            session_id: session_id.clone(),
+            t_unix_ms: SESSION_START_MS + i * 1000,
+            x: 200.0 * a.cos(),
+            y: 150.0 * a.sin(),
+            yaw: a + std::f64::consts::FRAC_PI_2,
+        })?;
+    }
+    w.finish();
+    Ok(n)
+}
+
+#[test]
+fn a_site_sized_map_shows_at_once_through_the_zoom_pyramid() -> anyhow::Result<()> {
+    let root = workspace_root();
+    if !Path::new(CHROMIUM).exists() {
+        println!("skipping browser pyramid test: {CHROMIUM} is missing (apt-get install chromium)");
+        return Ok(());
+    }
+    let modules = root.join("web/node_modules");
+    if !modules.join("playwright-core").is_dir() || !modules.join("leaflet").is_dir() {
+        println!("skipping browser pyramid test: web/node_modules is missing (cd web && npm ci)");
+        return Ok(());
+    }
+    let artifacts = root.join("artifacts/ui-pyramid");
+    std::fs::create_dir_all(&artifacts)?;
+    let dir = tempfile::tempdir()?;
+    let db = dir.path().join("station.db");
+    let t = Instant::now();
+    let tiles = write_site(&db)?;
+    println!(
+        "wrote {tiles} merged tiles in {:.1} s",
+        t.elapsed().as_secs_f64()
+    );
+
+    let t = Instant::now();
+    let station = Station::start(Ports::new(), &db);
+    println!(
+        "station restored the map and answers after {:.1} s",
+        t.elapsed().as_secs_f64()
+    );
+    let url = format!("http://127.0.0.1:{}/", station.ports.http);
+    let ui_out = artifacts.join("pyramid.stdout.log");
+    let ui_err = artifacts.join("pyramid.stderr.log");
+    let mut ui = KillOnDrop::spawn(
+        Command::new("node")
+            .arg(root.join("web/tests/pyramid.mjs"))
+            .arg(&url)
+            .args(["--tiles", &tiles.to_string()])
+            .current_dir(&root)
+            .env("TERRANAV_ARTIFACTS", &artifacts)
+            .stdin(Stdio::null())
+            .stdout(File::create(&ui_out)?)
+            .stderr(File::create(&ui_err)?),
+    )
+    .context("run node web/tests/pyramid.mjs (is node installed?)")?;
+    let started = Instant::now();
+    let status = loop {
+        if let Some(s) = ui.0.try_wait()? {
+            break Some(s);
+        }
+        if started.elapsed() > UI_TEST_LIMIT {
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    println!("{}", std::fs::read_to_string(&ui_out).unwrap_or_default());
+    let stderr = std::fs::read_to_string(&ui_err).unwrap_or_default();
+    println!("{stderr}");
+    match status {
+        None => bail!("web/tests/pyramid.mjs did not finish within {UI_TEST_LIMIT:?}"),
+        Some(s) if !s.success() => bail!(
+            "browser pyramid test failed ({s}); screenshots in {}:\n{stderr}\nstation log:\n{}",
+            artifacts.display(),
+            station.log_text()
+        ),
+        Some(_) => {}
+    }
+    Ok(())
+}
