@@ -144,11 +144,12 @@ mod tests {
     fn config_file_matches_defaults() {
         let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/robot.toml");
         let text = std::fs::read_to_string(p).unwrap();
-        // `[io]` and `[runtime]` configure `robot-agent run`, not the body; its loader takes
-        // them out before reading the profile.
+        // `[io]`, `[runtime]` and `[bus]` configure `robot-agent run`, not the body; its loader
+        // takes them out before reading the profile.
         let mut table: toml::Table = toml::from_str(&text).unwrap();
-        table.remove("io");
-        table.remove("runtime");
+        for section in ["io", "runtime", "bus"] {
+            table.remove(section);
+        }
         let prof: RobotProfile = toml::Value::Table(table).try_into().unwrap();
         assert_eq!(prof, RobotProfile::default());
     }

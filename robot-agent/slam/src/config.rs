@@ -1,7 +1,46 @@
 //! SLAM configuration. `Default` is the real robot's configuration (docs/algorithms.md §3); each
 //! stage receives only its own section.
 
-use serde::Deserialize;
+use serde::{Deserialize, Deserializer};
+
+/// A parameter that is either set (a number in the TOML) or derived from the data as it comes
+/// (`"auto"`, or the key absent): see [`crate::adaptive`].
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum Auto<T> {
+    /// Derived from the data.
+    #[default]
+    Auto,
+    /// Set by the configuration.
+    Fixed(T),
+}
+
+impl<T: Copy> Auto<T> {
+    /// The fixed value, `None` when automatic.
+    pub fn fixed(&self) -> Option<T> {
+        match self {
+            Auto::Auto => None,
+            Auto::Fixed(v) => Some(*v),
+        }
+    }
+}
+
+impl<'de, T: Deserialize<'de>> Deserialize<'de> for Auto<T> {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Raw<T> {
+            Value(T),
+            Word(String),
+        }
+        match Raw::<T>::deserialize(d)? {
+            Raw::Value(v) => Ok(Auto::Fixed(v)),
+            Raw::Word(w) if w == "auto" => Ok(Auto::Auto),
+            Raw::Word(w) => Err(serde::de::Error::custom(format!(
+                "expected a number or \"auto\", got {w:?}"
+            ))),
+        }
+    }
+}
 
 /// All SLAM parameters, one TOML table per stage (see `config/slam.toml`).
 #[derive(Clone, Debug, Default, Deserialize, PartialEq)]
@@ -21,6 +60,8 @@ pub struct Config {
     pub gravity: crate::gravity::GravityConfig,
     /// The pose graph behind the odometry (used by the agent, not by [`crate::Slam`]).
     pub graph: crate::graph::GraphConfig,
+    /// How the `"auto"` keys are derived from the data.
+    pub adaptive: crate::adaptive::AdaptiveConfig,
 }
 
 /// Where the LiDAR sits on the robot.
@@ -63,8 +104,9 @@ pub struct FilterConfig {
     pub keep_probability: f64,
     /// Seed of the sampling RNG (deterministic replays).
     pub seed: u64,
-    /// Voxel grid: one point per cube of this size, metres (0 disables).
-    pub voxel_size_m: f64,
+    /// Voxel grid: one point per cube of this size, metres (0 disables; `"auto"`: from the scan's
+    /// extent when it has more points than `adaptive.point_budget`).
+    pub voxel_size_m: Auto<f64>,
     /// Neighbours used for surface normals (PCA).
     pub normal_knn: usize,
     /// Normal neighbours are searched only this far, metres (0: unbounded). Bounding the search
@@ -89,7 +131,7 @@ impl Default for FilterConfig {
             max_range_m: 100.0,
             keep_probability: 0.7,
             seed: 1,
-            voxel_size_m: 0.0,
+            voxel_size_m: Auto::Auto,
             normal_knn: 12,
             normal_max_dist_m: 2.0,
             max_density_per_m3: 10.0,
@@ -105,8 +147,9 @@ impl Default for FilterConfig {
 pub struct IcpConfig {
     /// Map neighbours per reading point.
     pub knn: usize,
-    /// Max matching distance, metres.
-    pub max_match_dist_m: f64,
+    /// Max matching distance, metres (`"auto"`: from the recent motion-prediction error, see
+    /// `[adaptive]`).
+    pub max_match_dist_m: Auto<f64>,
     /// Cauchy scale `k` on residuals divided by their robust scale.
     pub cauchy_k: f64,
     /// Lower bound of the robust residual scale, metres (keeps converged scans from over-trusting).
@@ -132,11 +175,21 @@ pub struct IcpConfig {
     pub degenerate_eig_ratio: f64,
 }
 
+impl IcpConfig {
+    /// The matching distance in metres; an unresolved `"auto"` (a caller that keeps no adaptive
+    /// state, e.g. a single registration) is the adaptive initial gate.
+    pub fn match_dist_m(&self) -> f64 {
+        self.max_match_dist_m
+            .fixed()
+            .unwrap_or_else(|| crate::adaptive::AdaptiveConfig::default().initial_match_dist_m)
+    }
+}
+
 impl Default for IcpConfig {
     fn default() -> Self {
         Self {
             knn: 7,
-            max_match_dist_m: 1.1,
+            max_match_dist_m: Auto::Auto,
             cauchy_k: 3.0,
             min_residual_scale_m: 0.02,
             max_normal_angle_rad: 0.42,
@@ -158,8 +211,9 @@ impl Default for IcpConfig {
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
 pub struct MapConfig {
-    /// A reading point joins the map only when farther than this from every map point, metres.
-    pub min_dist_new_point_m: f64,
+    /// A reading point joins the map only when farther than this from every map point, metres
+    /// (`"auto"`: a share of the reading's voxel, see `[adaptive]`).
+    pub min_dist_new_point_m: Auto<f64>,
     /// Only reading points closer than this to the sensor join the map, metres.
     pub sensor_max_range_m: f64,
     /// Map points farther than this from the sensor are dropped, metres.
@@ -200,7 +254,7 @@ pub enum MapIndexKind {
 impl Default for MapConfig {
     fn default() -> Self {
         Self {
-            min_dist_new_point_m: 0.07,
+            min_dist_new_point_m: Auto::Auto,
             sensor_max_range_m: 30.0,
             distance_limit_m: 30.0,
             output_radius_m: 20.0,

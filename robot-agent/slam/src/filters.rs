@@ -111,8 +111,9 @@ pub fn sample(
         }
         out.push([p.x, p.y, p.z]);
     }
-    if cfg.voxel_size_m > 0.0 {
-        out = voxel_downsample(&out, cfg.voxel_size_m as f32);
+    // An unresolved "auto" (no adaptive state) means no voxel grid.
+    if let Some(v) = cfg.voxel_size_m.fixed().filter(|v| *v > 0.0) {
+        out = voxel_downsample(&out, v as f32);
     }
     out
 }

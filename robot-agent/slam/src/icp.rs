@@ -79,7 +79,7 @@ pub fn register(
     }
     let cos_max = cfg.max_normal_angle_rad.cos() as f32;
     let k = cfg.knn.max(1);
-    let max_d = cfg.max_match_dist_m as f32;
+    let max_d = cfg.match_dist_m() as f32;
     let mut nb = Vec::with_capacity(k);
     // Pairs of the current iteration: (reading index, point in target frame, target normal, residual).
     let mut pairs: Vec<(u32, Vector3<f32>, Vector3<f32>, f32)> =

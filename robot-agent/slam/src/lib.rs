@@ -7,6 +7,7 @@
 //! - [`filters`]: reading filters (sampling, robot box, voxel, PCA normals, max density).
 //! - [`icp`]: point-to-plane Gauss-Newton on SE(3) with Cauchy weights and checkers.
 //! - [`map`]: the point map, its spatial index and the dynamic-point ray model.
+//! - [`adaptive`]: voxel size, map spacing and the match gate from the data (`"auto"` keys).
 //! - [`pipeline`]: the per-scan step ([`Slam::process`]).
 //! - [`gravity`]: the frame's roll and pitch from an accelerometer (gravity against the estimate).
 //! - [`graph`]: the pose graph behind the odometry (keyframes, GNSS and loop factors, LM).
@@ -14,6 +15,7 @@
 //! - [`eval`]: ATE / RPE / drift against ground truth, map-point provenance.
 #![deny(missing_docs)]
 
+pub mod adaptive;
 pub mod config;
 pub mod eval;
 pub mod filters;
@@ -26,6 +28,6 @@ pub mod pipeline;
 pub mod place;
 pub mod se3;
 
-pub use config::Config;
+pub use config::{Auto, Config};
 pub use eval::{trajectory_errors, Cylinder, Provenance, TrajectoryErrors};
 pub use pipeline::{register_pair, Diagnostics, PriorKind, Slam, SlamError, SlamOutput};

@@ -203,7 +203,12 @@ impl Map {
     ) {
         let sensor = map_from_sensor.translation.vector.cast::<f32>();
         let max_new = cfg.sensor_max_range_m as f32;
-        let min_d2 = (cfg.min_dist_new_point_m * cfg.min_dist_new_point_m) as f32;
+        // An unresolved "auto" (no adaptive state) is the adaptive floor.
+        let min_d = cfg
+            .min_dist_new_point_m
+            .fixed()
+            .unwrap_or_else(|| crate::adaptive::AdaptiveConfig::default().min_new_point_m);
+        let min_d2 = (min_d * min_d) as f32;
         let thr = dyn_cfg.threshold as f32;
         let mut nb = Vec::with_capacity(1);
         let mut new_idx = Vec::new();

@@ -1,5 +1,6 @@
 //! The per-scan SLAM step: prior, de-skew, reading filters, ICP against the map, map update.
 
+use crate::adaptive::{self, Adaptive};
 use crate::config::Config;
 use crate::filters::{self, OrientedCloud};
 use crate::icp::{self, IcpResult, IcpStatus};
@@ -73,6 +74,13 @@ pub struct Diagnostics {
     pub map_updated: bool,
     /// True when the scan was de-skewed.
     pub deskewed: bool,
+    /// True when the registration from the prior failed and a wider search (see
+    /// `adaptive.recovery_attempts`) found the pose.
+    pub recovered: bool,
+    /// Correspondence gate used, metres (adaptive when `icp.max_match_dist_m` is `"auto"`).
+    pub match_dist_m: f64,
+    /// Voxel of the reading, metres (0: none).
+    pub voxel_m: f64,
 }
 
 /// What SLAM reports for one scan.
@@ -114,6 +122,8 @@ pub struct Slam {
     gyro: VecDeque<(f64, Vector3<f64>)>,
     /// Scans processed (the dynamic-point update runs on every `dynamic.every_n_scans`-th).
     scans: u64,
+    /// Scan extent and match gate for the `"auto"` keys.
+    adaptive: Adaptive,
 }
 
 /// Odometry older than this before the newest scan is dropped, seconds.
@@ -123,7 +133,13 @@ impl Slam {
     /// A new SLAM session with an empty map.
     pub fn new(cfg: Config) -> Self {
         let base_from_lidar = se3::from_xyz_rpy(cfg.sensor.lidar_xyz_m, cfg.sensor.lidar_rpy_rad);
-        let map = Map::new(cfg.map.index, cfg.icp.max_match_dist_m as f32);
+        // A voxel index caps neighbour searches at its cube: the widest gate the session may use.
+        let cube_m = cfg
+            .icp
+            .max_match_dist_m
+            .fixed()
+            .unwrap_or(cfg.adaptive.max_match_dist_m);
+        let map = Map::new(cfg.map.index, cube_m as f32);
         let rng = StdRng::seed_from_u64(cfg.filters.seed);
         Self {
             cfg,
@@ -136,6 +152,7 @@ impl Slam {
             last_map_update: None,
             gyro: VecDeque::new(),
             scans: 0,
+            adaptive: Adaptive::default(),
         }
     }
 
@@ -319,17 +336,53 @@ impl Slam {
         });
         let raw: &[Point] = deskewed.as_deref().unwrap_or(&scan.points);
 
-        let sampled = filters::sample(raw, &self.base_from_lidar, &self.cfg.filters, &mut self.rng);
-        let reading =
-            filters::normals_and_density(sampled, [0.0; 3], &self.cfg.filters, &mut self.rng);
+        let res = self.adaptive.resolve(
+            raw,
+            &self.cfg.filters,
+            &self.cfg.icp,
+            &self.cfg.map,
+            &self.cfg.adaptive,
+        );
+        let sampled = filters::sample(raw, &self.base_from_lidar, &res.filters, &mut self.rng);
+        let reading = filters::normals_and_density(sampled, [0.0; 3], &res.filters, &mut self.rng);
         if reading.len() < self.cfg.icp.min_matched_points.max(6) {
             return Err(SlamError::TooFewPoints(reading.len()));
         }
 
-        let icp_res: Option<IcpResult> = (!self.map.is_empty())
-            .then(|| icp::register(&reading, self.map.cloud(), &self.map, &prior, &self.cfg.icp));
+        // The second scan's prior assumes standing still (no motion is known yet): at 2 Hz the
+        // sensor may be metres away, so it is registered coarse to fine.
+        let unknown_motion = prior_kind == PriorKind::ConstantVelocity && self.history.len() < 2;
+        let mut icp_res: Option<IcpResult> = (!self.map.is_empty()).then(|| {
+            let map = &self.map;
+            let reg = |init: &Isometry3<f64>, c: &crate::config::IcpConfig| {
+                icp::register(&reading, map.cloud(), map, init, c)
+            };
+            if unknown_motion {
+                adaptive::coarse_to_fine(reg, &prior, &res.icp, self.cfg.adaptive.max_match_dist_m)
+            } else {
+                reg(&prior, &res.icp)
+            }
+        });
+        // A bad prediction: retry wider before falling back to the prior.
+        let mut recovered = false;
+        if let Some(r) = icp_res.as_mut().filter(|r| !r.status.is_ok()) {
+            let map = &self.map;
+            let retry = |init: &Isometry3<f64>, c: &crate::config::IcpConfig| {
+                icp::register(&reading, map.cloud(), map, init, c)
+            };
+            if let Some(better) = adaptive::recover(retry, &prior, &res.icp, &self.cfg.adaptive) {
+                *r = better;
+                recovered = true;
+            }
+        }
         let pose_map_lidar = icp_res.as_ref().map_or(prior, |r| r.pose);
         let failed = icp_res.as_ref().is_some_and(|r| !r.status.is_ok());
+        if let (false, Some(_), Some((_, previous))) =
+            (failed, icp_res.as_ref(), self.history.back())
+        {
+            self.adaptive
+                .observe(&prior, &pose_map_lidar, previous, &self.cfg.adaptive);
+        }
 
         // A failed scan must not write a misplaced copy of the world into the map.
         let map_updated = !failed && self.wants_map_update(scan.stamp_s, &pose_map_lidar);
@@ -341,7 +394,7 @@ impl Slam {
                 raw,
                 &pose_map_lidar,
                 scan.stamp_s,
-                &self.cfg.map,
+                &res.map,
                 &self.cfg.dynamic,
             )
         } else if !failed
@@ -403,6 +456,9 @@ impl Slam {
                 map_update,
                 map_updated,
                 deskewed: was_deskewed,
+                recovered,
+                match_dist_m: res.icp.match_dist_m(),
+                voxel_m: res.filters.voxel_size_m.fixed().unwrap_or(0.0),
             },
         })
     }
@@ -418,14 +474,23 @@ pub fn register_pair(
 ) -> IcpResult {
     let mut rng = StdRng::seed_from_u64(cfg.filters.seed);
     let id = Isometry3::identity();
+    // "auto" keys from the source scan (both are scans of one sensor); no prediction error is
+    // known for a single pair, so the gate is the initial one.
+    let res = Adaptive::default().resolve(source, &cfg.filters, &cfg.icp, &cfg.map, &cfg.adaptive);
     let prep = |pts: &[Point], rng: &mut StdRng| {
-        let s = filters::sample(pts, &id, &cfg.filters, rng);
-        filters::normals_and_density(s, [0.0; 3], &cfg.filters, rng)
+        let s = filters::sample(pts, &id, &res.filters, rng);
+        filters::normals_and_density(s, [0.0; 3], &res.filters, rng)
     };
     let src = prep(source, &mut rng);
     let tgt = prep(target, &mut rng);
     let index = crate::index::KdIndex::build(&tgt.points);
-    icp::register(&src, &tgt, &index, init, &cfg.icp)
+    let first = icp::register(&src, &tgt, &index, init, &res.icp);
+    if first.status.is_ok() {
+        return first;
+    }
+    let retry =
+        |i: &Isometry3<f64>, c: &crate::config::IcpConfig| icp::register(&src, &tgt, &index, i, c);
+    adaptive::recover(retry, init, &res.icp, &cfg.adaptive).unwrap_or(first)
 }
 
 #[cfg(test)]

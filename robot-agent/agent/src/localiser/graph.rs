@@ -1,5 +1,5 @@
 //! The pose graph behind SLAM, as the localiser runs it (`[graph]` in `config/slam.toml`,
-//! docs/algorithms.md §3.6).
+//! docs/algorithms.md §3.7).
 //!
 //! Keyframes are the SLAM poses carried into the map frame by the anchoring the graph started
 //! with (`map<-slam` at its first keyframe), so the graph's world is the map frame and RTK fixes

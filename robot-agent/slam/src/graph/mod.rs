@@ -1,4 +1,4 @@
-//! A pose graph behind the scan-to-map odometry (docs/algorithms.md §3.6).
+//! A pose graph behind the scan-to-map odometry (docs/algorithms.md §3.7).
 //!
 //! Keyframes carry the odometry's pose, the optimised pose, a local cloud and its place
 //! descriptor. Factors: odometry between consecutive keyframes (information shrinking with the
