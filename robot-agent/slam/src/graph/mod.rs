@@ -169,7 +169,7 @@ pub fn verify_loop(
 ) -> Result<(Isometry3<f64>, f64, f64), LoopRejection> {
     let index = KdIndex::build(&target.points);
     let mut icp_cfg = IcpConfig {
-        max_match_dist_m: cfg.loop_icp_max_match_dist_m,
+        max_match_dist_m: crate::config::Auto::Fixed(cfg.loop_icp_max_match_dist_m),
         max_iterations: 60,
         max_correction_trans_m: cfg.loop_max_offset_m,
         max_correction_rot_rad: 0.6,
@@ -180,7 +180,7 @@ pub fn verify_loop(
     if !coarse.status.is_ok() {
         return Err(LoopRejection::IcpFailed(coarse.status));
     }
-    icp_cfg.max_match_dist_m = cfg.loop_icp_max_match_dist_m / 3.0;
+    icp_cfg.max_match_dist_m = crate::config::Auto::Fixed(cfg.loop_icp_max_match_dist_m / 3.0);
     let fine = icp::register(reading, target, &index, &coarse.pose, &icp_cfg);
     if !fine.status.is_ok() {
         return Err(LoopRejection::IcpFailed(fine.status));
