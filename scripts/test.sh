@@ -31,8 +31,10 @@ fi
 
 # tests/gnss_io.rs runs Debian's gpsd and socat; tests/ros2_io.rs checks our CDR against rosbags.
 if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-    for p in gpsd socat; do
-        command -v "$p" >/dev/null 2>&1 || { say "installing $p"; apt-get update -qq; DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "$p" >/dev/null; }
+    # command:package (tests/netns.rs needs `ip` and `tc` from iproute2)
+    for cp in gpsd:gpsd socat:socat ip:iproute2 tc:iproute2; do
+        c="${cp%%:*}" p="${cp#*:}"
+        command -v "$c" >/dev/null 2>&1 || { say "installing $p"; apt-get update -qq; DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "$p" >/dev/null; }
     done
 fi
 python3 -c 'import rosbags' 2>/dev/null || { say "installing rosbags (pip)"; python3 -m pip install -q rosbags || pip install -q rosbags; }

@@ -131,7 +131,7 @@ fn every_key_of_the_agent_files_is_read() {
     unread.extend(
         unread_keys("robot.toml", |d| {
             let run = load_run_file(&d.join("robot.toml"))
-                .map(|r| format!("{:?} {:?}", r.io, r.runtime))
+                .map(|r| format!("{:?} {:?} {:?}", r.io, r.runtime, r.bus.uplink(None)))
                 .unwrap_or_else(|e| format!("Err {e}"));
             format!("{} {run}", agent(d))
         })

@@ -471,7 +471,7 @@ mod tests {
         for tx in -39..39 {
             for ty in -39..39 {
                 let t = tile(tx, ty, |c, r| {
-                    if (c * 7 + r * 3 + tx.unsigned_abs() as u16) % 97 == 0 {
+                    if (c * 7 + r * 3 + tx.unsigned_abs() as u16).is_multiple_of(97) {
                         CellState::Obstacle
                     } else {
                         CellState::Traversable

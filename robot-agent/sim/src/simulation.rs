@@ -760,10 +760,8 @@ yaw_deg = 0.0
             .all(|(_, q)| *q == 4));
         // A degenerate polygon is refused with its field named.
         let err = Scenario::from_toml_str(
-            &format!(
-                "name = \"x\"\n[datum]\nlat_deg = 48.0\nlon_deg = 16.0\nh_m = 0.0\n[extent]\nx_min_m = -1.0\nx_max_m = 1.0\ny_min_m = -1.0\ny_max_m = 1.0\n\
-                 [[gnss_denied]]\npoints = [[0.0, 0.0], [1.0, 0.0]]\n"
-            ),
+            "name = \"x\"\n[datum]\nlat_deg = 48.0\nlon_deg = 16.0\nh_m = 0.0\n[extent]\nx_min_m = -1.0\nx_max_m = 1.0\ny_min_m = -1.0\ny_max_m = 1.0\n\
+                 [[gnss_denied]]\npoints = [[0.0, 0.0], [1.0, 0.0]]\n",
             "t",
         )
         .unwrap_err();

@@ -46,12 +46,15 @@ fn cost(poses: &[Isometry3<f64>], factors: &[Factor], c: f64) -> f64 {
         .sum()
 }
 
+/// One 6x6 block of the normal matrix at (block row, block column).
+type Block = (usize, usize, Matrix6<f64>);
+
 /// Normal equations `H dx = -b` at `poses`, IRLS weights on robust factors.
 fn normal_equations(
     poses: &[Isometry3<f64>],
     factors: &[Factor],
     c: f64,
-) -> (Vec<(usize, usize, Matrix6<f64>)>, DVector<f64>) {
+) -> (Vec<Block>, DVector<f64>) {
     let mut blocks = Vec::with_capacity(factors.len() * 4 + poses.len());
     let mut b = DVector::zeros(poses.len() * 6);
     for f in factors {
