@@ -433,12 +433,32 @@ async fn run_until_stopped(
     running: &mut Running,
     z: &ZenohArgs,
     watch: &mut Option<RegisterWatch>,
-    mut tick: impl FnMut() -> bool,
+    tick: impl FnMut() -> bool,
 ) {
-    let mut interval = tokio::time::interval(Duration::from_millis(500));
+    let reopen = async || {
+        let zc = zenoh_config(z, Role::Station)?;
+        running
+            .station
+            .reopen(zc)
+            .await
+            .map_err(anyhow::Error::from)
+    };
+    until_stopped(Duration::from_millis(500), "Zenoh", watch, tick, reopen).await;
+}
+
+/// Waits for Ctrl-C (or SIGTERM / SIGHUP), calling `tick` every `period` (true: stop) and
+/// `reopen` when the register watched by `watch` changed; a re-open that failed (the port not
+/// yet free) is tried again on the next tick. `what` names the session in the log.
+pub(crate) async fn until_stopped(
+    period: Duration,
+    what: &str,
+    watch: &mut Option<RegisterWatch>,
+    mut tick: impl FnMut() -> bool,
+    mut reopen: impl AsyncFnMut() -> anyhow::Result<()>,
+) {
+    let mut interval = tokio::time::interval(period);
     let stop = stop_signal();
     tokio::pin!(stop);
-    // A re-open that failed (the port not yet free) is tried again on the next tick.
     let mut reload = false;
     loop {
         tokio::select! {
@@ -451,14 +471,10 @@ async fn run_until_stopped(
                     reload |= w.changed();
                 }
                 if reload {
-                    tracing::info!("fleet register changed: re-opening Zenoh with the new access rules");
-                    let r = match zenoh_config(z, Role::Station) {
-                        Ok(zc) => running.station.reopen(zc).await.map_err(anyhow::Error::from),
-                        Err(e) => Err(e),
-                    };
-                    match r {
+                    tracing::info!("fleet register changed: re-opening {what} with the new access rules");
+                    match reopen().await {
                         Ok(()) => reload = false,
-                        Err(e) => tracing::error!("re-opening Zenoh: {e:#}"),
+                        Err(e) => tracing::error!("re-opening {what}: {e:#}"),
                     }
                 }
             }

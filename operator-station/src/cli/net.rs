@@ -16,7 +16,7 @@ use common::grid::decode_tile;
 use common::keys::{self, RobotId};
 use zenoh::query::ConsolidationMode;
 
-use super::{stop_signal, zenoh_config, Role, ZenohArgs};
+use super::{until_stopped, zenoh_config, Role, ZenohArgs};
 use crate::security::RegisterWatch;
 
 /// `router` options.
@@ -70,32 +70,19 @@ pub async fn router(a: RouterArgs) -> anyhow::Result<()> {
                            "connect": a.z.connect, "secure": a.z.pki.is_some()})
     );
     let mut watch = a.z.pki.as_deref().map(RegisterWatch::new);
-    let mut interval = tokio::time::interval(Duration::from_secs(1));
-    let stop = stop_signal();
-    tokio::pin!(stop);
-    // A re-open that failed (the port not yet free) is tried again on the next tick.
-    let mut reload = false;
-    loop {
-        tokio::select! {
-            _ = &mut stop => break,
-            _ = interval.tick() => {
-                if let Some(w) = watch.as_mut() {
-                    reload |= w.changed();
-                }
-                if reload {
-                    tracing::info!("fleet register changed: re-opening the router with the new access rules");
-                    let _ = session.close().await;
-                    match open(&a.z).await {
-                        Ok(s) => {
-                            session = s;
-                            reload = false;
-                        }
-                        Err(e) => tracing::error!("re-opening the router: {e:#}"),
-                    }
-                }
-            }
-        }
-    }
+    let reopen = async || {
+        let _ = session.close().await;
+        session = open(&a.z).await?;
+        Ok(())
+    };
+    until_stopped(
+        Duration::from_secs(1),
+        "the router",
+        &mut watch,
+        || false,
+        reopen,
+    )
+    .await;
     let _ = session.close().await;
     Ok(())
 }
