@@ -49,9 +49,9 @@ pub struct ZenohArgs {
     /// Zenoh endpoint to connect to (e.g. a router, or for CLI commands the station).
     #[arg(long)]
     pub connect: Option<String>,
-    /// The fleet's PKI folder (`pki init`): Zenoh over TLS with mutual authentication as the
-    /// station, under the station's access rules; endpoints are then tls/ (default
-    /// tls/127.0.0.1:7447). Without it, endpoints off loopback are refused.
+    /// The fleet's PKI folder (`pki init`): Zenoh over QUIC with mutual TLS authentication as
+    /// the station, under the station's access rules; endpoints are then quic/ (default
+    /// quic/127.0.0.1:7447; tls/ is accepted too). Without it, endpoints off loopback are refused.
     #[arg(long, value_name = "DIR")]
     pub pki: Option<PathBuf>,
 }
@@ -369,12 +369,16 @@ enum Role {
     Client,
 }
 
-/// The Zenoh config of `z` for `role`: default endpoints on loopback (`tls/` with `--pki`), TLS
+/// The Zenoh config of `z` for `role`: default endpoints on loopback (`quic/` with `--pki`), TLS
 /// and access rules with `--pki`, and the refusal of plain endpoints off loopback.
 fn zenoh_config(z: &ZenohArgs, role: Role) -> anyhow::Result<zenoh::Config> {
     let secure = z.pki.is_some();
     let default_ep = if secure {
-        DEFAULT_LISTEN_ENDPOINT.replacen("tcp/", "tls/", 1)
+        DEFAULT_LISTEN_ENDPOINT.replacen(
+            "tcp/",
+            &format!("{}/", common::security::SECURE_SCHEME),
+            1,
+        )
     } else {
         DEFAULT_LISTEN_ENDPOINT.to_string()
     };
@@ -1218,7 +1222,7 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("pki init") && e.contains("tls/0.0.0.0:7447"),
+            e.contains("pki init") && e.contains("quic/0.0.0.0:7447"),
             "{e}"
         );
         assert!(zenoh_config(&z(None, Some("tcp/192.0.2.1:7447")), Role::Client).is_err());
