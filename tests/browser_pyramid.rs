@@ -3,7 +3,9 @@
 //! the station's SQLite store) and a past session with a pose track; Debian's chromium driven by
 //! `node web/tests/pyramid.mjs` opens the UI and measures the time to the first full view of the
 //! site and the tile requests it takes (printed, never asserted on time), checks that zooming in
-//! reaches full resolution (pyramid level 0), and scrubs the session's track in time.
+//! reaches full resolution (pyramid level 0), and scrubs the session's track in time with the map
+//! as it was: the tile history has the site's west half mapped 60 s into the session and the
+//! east half at 450 s, so at half time (300 s) only the west half may be drawn.
 //!
 //! Skips with a notice only when `/usr/bin/chromium` or `web/node_modules` is missing; CI installs
 //! both.
@@ -28,6 +30,11 @@ const UI_TEST_LIMIT: Duration = Duration::from_secs(150);
 const SIDE_TILES: i32 = 78;
 /// Start of the synthetic session, Unix ms.
 const SESSION_START_MS: u64 = 1_790_000_000_000;
+/// When the tile history has the west half (tx < 0) and the east half of the site, Unix ms.
+const WEST_MAPPED_MS: u64 = SESSION_START_MS + 60_000;
+const EAST_MAPPED_MS: u64 = SESSION_START_MS + 450_000;
+/// The history period the rows are written with (the station's default).
+const HISTORY_PERIOD_S: u32 = 60;
 
 /// Cell (c, r) of tile (tx, ty): ground everywhere, walls every 100 m, scattered trees (a cell
 /// obstacle ringed by inflated cells), and nothing known in a few pockets.
@@ -80,12 +87,26 @@ fn write_site(db: &Path) -> anyhow::Result<usize> {
     for ty in -half..SIDE_TILES - half {
         for txi in -half..SIDE_TILES - half {
             let t = synthetic_tile(txi, ty);
+            let data = encode_tile(&t);
+            let mapped_ms = if txi < 0 {
+                WEST_MAPPED_MS
+            } else {
+                EAST_MAPPED_MS
+            };
+            tx.send(StoreOp::TileHistory {
+                datum_id: "d0".into(),
+                tx: txi,
+                ty,
+                bucket: operator_station::history::bucket(mapped_ms, HISTORY_PERIOD_S),
+                t_unix_ms: mapped_ms,
+                data: data.clone(),
+            })?;
             tx.send(StoreOp::Tile {
                 datum_id: "d0".into(),
                 tx: txi,
                 ty,
                 version: 1,
-                data: encode_tile(&t),
+                data,
             })?;
             n += 1;
         }

@@ -91,6 +91,8 @@ const state = {
   tileVersions: new Map(), // "tx,ty" -> merged tile version last seen
   tileBumps: new Map(), // "level/tx/ty" -> reload counter of a changed pyramid tile
   touched: new Set(), // "tx,ty" of merged tiles changed since the last reload
+  mapAt: null, // Unix ms the map is drawn as it was (a scrubbed session), or null: the live map
+  mapAtTimer: null,
   touchTimer: null,
   tileLoads: [], // {t_ms, level, settled, view_m} each time the pyramid layer finished loading its visible tiles
   selected: null,
@@ -253,6 +255,9 @@ const PyramidLayer = L.TileLayer.extend({
   },
   getTileUrl(coords) {
     const { level, tx, ty } = pyramidIndex(this, coords);
+    if (state.mapAt !== null) {
+      return withToken(`/api/map/${enc(this.options.datumId)}/history/${state.mapAt}/${level}/${tx}/${ty}.png`);
+    }
     const bump = state.tileBumps.get(`${level}/${tx}/${ty}`);
     const url = `/api/map/${enc(this.options.datumId)}/pyramid/${level}/${tx}/${ty}.png` + (bump ? `?v=${bump}` : "");
     return withToken(url);
@@ -294,6 +299,18 @@ function showPyramid(bounds) {
   });
 }
 
+/** Draws the pyramid layer again from scratch (another time of the map). A new layer rather than
+ * `redraw()`: Leaflet 1.9's GridLayer.redraw takes the map's zoom unrounded as the tile zoom, so at
+ * a fractional zoom it asks for tiles of level 2.75. */
+function reloadPyramid() {
+  const old = state.tileLayer;
+  if (!old || !state.tileMeta) return;
+  const bounds = old.options.bounds;
+  old.remove();
+  state.tileLayer = null;
+  showPyramid(bounds);
+}
+
 /** Merged tile (tx, ty) changed: the shown pyramid tile above it is loaded again (coalesced). */
 function touchTile(tx, ty) {
   const layer = state.tileLayer;
@@ -314,6 +331,8 @@ function flushTouched() {
   const layer = state.tileLayer;
   const touched = [...state.touched];
   state.touched.clear();
+  // A past map does not change; the live one is drawn again when the scrub ends.
+  if (state.mapAt !== null) return;
   const z = layer && layer._tileZoom;
   if (z === undefined) return;
   const level = layer.options.z0 - z;
@@ -381,6 +400,8 @@ function upsertTile(tx, ty, version) {
 function setDatum(datumId) {
   if (datumId === state.datumId) return;
   state.datumId = datumId;
+  clearTimeout(state.mapAtTimer);
+  state.mapAt = null;
   clearTiles();
   state.tileMeta = null;
   // Trails stay: they are in their robot's datum, and come back when that datum is drawn again.
@@ -1234,9 +1255,9 @@ function renderSessions() {
 }
 
 // ----- time scrubbing of a shown track ------------------------------------------------------------
-// The slider shows the track as it was at time t: the points up to t and the robot's pose then.
-// The map stays the latest merged map: the station stores only the newest version of each tile
-// (see README, "Time scrubbing"), so there is no older map to show.
+// The slider shows the track as it was at time t: the points up to t and the robot's pose then,
+// and the merged map as it was then (the station's tile history, one version per tile per history
+// period: README, "Time scrubbing"). At the end of a live session's slider the map is live again.
 
 function scrubHtml(t) {
   const first = t.points[0][0];
@@ -1244,7 +1265,22 @@ function scrubHtml(t) {
   const at = t.scrubT ?? last;
   return `<div class="row tight scrub"><input type="range" data-act="scrub" min="${first}" max="${last}" step="100" value="${at}">
     <span class="small mono scrub-time">${scrubLabel(first, at)}</span></div>
-    <div class="muted small">map: latest (tile history is not stored)</div>`;
+    <div class="muted small scrub-map">${mapAtLabel()}</div>`;
+}
+
+function mapAtLabel() {
+  return state.mapAt === null ? "map: live" : `map: as at ${new Date(state.mapAt).toTimeString().slice(0, 8)}`;
+}
+
+/** Draws the map as it was at `t` (Unix ms), or live (null); the tiles reload once the slider rests. */
+function setMapAt(t) {
+  clearTimeout(state.mapAtTimer);
+  state.mapAtTimer = setTimeout(() => {
+    if (state.mapAt === t) return;
+    state.mapAt = t;
+    reloadPyramid();
+    for (const el of sessionList.querySelectorAll(".scrub-map")) el.textContent = mapAtLabel();
+  }, 200);
 }
 
 function scrubLabel(first, t) {
@@ -1273,6 +1309,11 @@ function scrubTrack(id, t) {
   tr.marker.bindTooltip(`${esc(tr.robot)} at ${new Date(p[0]).toTimeString().slice(0, 8)}`);
   const label = sessionList.querySelector(`.item[data-session="${CSS.escape(id)}"] .scrub-time`);
   if (label) label.textContent = scrubLabel(tr.points[0][0], t);
+  if (tr.datum_id === state.datumId) {
+    const s = state.sessions.find((x) => x.session_id === id);
+    const atEnd = t >= tr.points[tr.points.length - 1][0];
+    setMapAt(s && s.live && atEnd ? null : Math.round(t));
+  }
 }
 
 sessionList.addEventListener("click", (ev) => {
@@ -1292,6 +1333,7 @@ async function toggleTrack(id) {
     existing.layer.remove();
     if (existing.marker) existing.marker.remove();
     state.trackLayers.delete(id);
+    if (![...state.trackLayers.values()].some((t) => t.scrubT !== null)) setMapAt(null);
     renderSessions();
     return;
   }

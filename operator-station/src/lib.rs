@@ -11,6 +11,7 @@ pub mod bus;
 pub mod cli;
 pub mod export;
 pub mod fleet;
+pub mod history;
 pub mod merge;
 pub mod missions;
 pub mod pki;

@@ -60,6 +60,9 @@ pub struct StationOptions {
     pub db: PathBuf,
     /// What raises alerts.
     pub alerts: AlertConfig,
+    /// History period of the merged map, seconds: each tile keeps its last version of every
+    /// period, so a past session can be scrubbed with its map (0: no history).
+    pub map_history_s: u32,
 }
 
 /// The operator's zones and the version of the set (Unix ms of the last change, so it grows
@@ -179,6 +182,10 @@ pub struct Inner {
     pub runs: Mutex<BTreeMap<String, Run>>,
     /// The alert list.
     pub alerts: Mutex<Alerts>,
+    /// History period of the merged map, seconds (0: none kept).
+    pub map_history_s: u32,
+    /// Past maps recently drawn (scrubbing).
+    pub history: crate::history::SnapshotCache,
 }
 
 /// A running station.
@@ -787,20 +794,30 @@ impl Station {
         let pyramid = Arc::new(Mutex::new(crate::pyramid::Pyramid::new()));
         crate::pyramid::warm_in_background(map.clone(), pyramid.clone());
         let sink_pyramid = pyramid.clone();
+        let history_s = opts.map_history_s;
         let merge = MergeWorker::start(
             map.clone(),
             Box::new(move |ch: TileChange, enc: Vec<u8>| {
                 crate::pyramid::mark_changed(&sink_pyramid, &ch.datum_id, ch.index);
-                let _ = sink_store
-                    .lock()
-                    .unwrap_or_else(|p| p.into_inner())
-                    .send(StoreOp::Tile {
+                let store = sink_store.lock().unwrap_or_else(|p| p.into_inner());
+                if history_s > 0 {
+                    let t = now_unix_ms();
+                    let _ = store.send(StoreOp::TileHistory {
                         datum_id: ch.datum_id.clone(),
                         tx: ch.index.tx,
                         ty: ch.index.ty,
-                        version: ch.version,
-                        data: enc,
+                        bucket: crate::history::bucket(t, history_s),
+                        t_unix_ms: t,
+                        data: enc.clone(),
                     });
+                }
+                let _ = store.send(StoreOp::Tile {
+                    datum_id: ch.datum_id.clone(),
+                    tx: ch.index.tx,
+                    ty: ch.index.ty,
+                    version: ch.version,
+                    data: enc,
+                });
                 let _ = sink_events.send(Arc::from(
                     json!({"type": "tile", "datum_id": ch.datum_id, "tx": ch.index.tx, "ty": ch.index.ty, "version": ch.version})
                         .to_string(),
@@ -833,6 +850,8 @@ impl Station {
             missions: Mutex::new(mission_rows),
             runs: Mutex::new(BTreeMap::new()),
             alerts: Mutex::new(Alerts::restore(opts.alerts, alert_rows)),
+            map_history_s: opts.map_history_s,
+            history: Default::default(),
         });
         let subs = crate::bus::subscribe::declare(&inner).await?;
         let i5 = inner.clone();

@@ -162,6 +162,7 @@ async function main() {
       const s = document.querySelector("#session-list input[data-act=scrub]");
       return [Number(s.min), Number(s.max)];
     });
+    const loadsBeforeScrub = await page.evaluate(() => window.terranav.state.tileLoads.length);
     // As a drag does: set the value, fire "input".
     await page.evaluate((v) => {
       const s = document.querySelector("#session-list input[data-act=scrub]");
@@ -177,6 +178,31 @@ async function main() {
     if (Math.abs(half - full / 2) > 2) throw new StepFailed(`scrubbed to half time: ${half} of ${full} points drawn`);
     out.scrub = { points: full, at_half: half };
     log(`scrubbed to half time: ${half} of ${full} track points drawn, pose marker shown`);
+    // ... and the map as it was then: the history has the west half (tx < 0) from +60 s and the
+    // east half from +450 s, so at +300 s the layer draws the past map, west half only.
+    const mapAt = await until("the map is drawn as it was at the slider's time", 5000, () =>
+      page.evaluate(() => window.terranav.state.mapAt));
+    if (Math.abs(mapAt - (min + max) / 2) > 1000) throw new StepFailed(`map drawn at ${mapAt}, slider at ${(min + max) / 2}`);
+    // Every visible tile of the past map answered (the layer fires "load" once none is pending).
+    const historyReqs = await until("the layer loaded the past map's visible tiles", 15000, async () => {
+      const h = requests.filter((r) => r.url.includes(`/history/${mapAt}/`));
+      const loaded = await page.evaluate((n) => window.terranav.state.tileLoads.length > n, loadsBeforeScrub);
+      return h.length && loaded && h.every((r) => r.status !== null) ? h : null;
+    });
+    const probe = await page.evaluate(async (t) => {
+      const get = async (p) => (await fetch(`/api/map/d0/history/${t}/${p}`)).status;
+      const info = await (await fetch("/api/map/d0/history")).json();
+      return { west: await get("0/-3/0.png"), east: await get("0/3/0.png"), info };
+    }, mapAt);
+    const later = await page.evaluate(async (t) => (await fetch(`/api/map/d0/history/${t}/0/3/0.png`)).status, max);
+    if (probe.west !== 200 || probe.east !== 404 || later !== 200) {
+      throw new StepFailed(`past map at half time: west tile ${probe.west}, east tile ${probe.east} (want 200, 404); east at the end ${later} (want 200)`);
+    }
+    const byStatus = {};
+    for (const r of historyReqs) byStatus[r.status] = (byStatus[r.status] || 0) + 1;
+    if (!byStatus[200]) throw new StepFailed(`no past-map tile was drawn: ${JSON.stringify(byStatus)}, e.g. ${historyReqs[0].url}`);
+    out.scrub.map_history = { tile_requests: historyReqs.length, by_status: byStatus, rows: probe.info.rows, bytes: probe.info.bytes };
+    log(`past map at half time: ${historyReqs.length} history tile requests ${JSON.stringify(byStatus)}; west tile 200, east tile 404, east at the end 200; history ${probe.info.rows} rows`);
     // The screenshot after the fit to the track has settled (zoom animation, tiles).
     await sleep(1000);
     await shot(page, "scrubbed");

@@ -112,6 +112,11 @@ pub fn router(state: AppState, web: Option<PathBuf>) -> Router {
             "/api/map/{datum_id}/pyramid/{level}/{tx}/{typng}",
             get(pyramid::tile),
         )
+        .route("/api/map/{datum_id}/history", get(pyramid::history_info))
+        .route(
+            "/api/map/{datum_id}/history/{t_unix_ms}/{level}/{tx}/{typng}",
+            get(pyramid::history_tile),
+        )
         .route("/api/sessions", get(sessions))
         .route("/api/sessions/{session_id}/track", get(track))
         .route("/api/routes", get(routes))

@@ -289,6 +289,7 @@ async fn latency_bench(a: &BenchArgs) -> anyhow::Result<serde_json::Value> {
         zenoh: station::zenoh_config(None, None, std::slice::from_ref(&station_ep), &[])?,
         db: dir.join("bench.sqlite"),
         alerts: crate::alerts::AlertConfig::default(),
+        map_history_s: 60,
     })
     .await?;
     let mut events = st.inner.events.subscribe();

@@ -126,6 +126,10 @@ pub struct OpsArgs {
     /// "stuck" alert, seconds.
     #[arg(long, default_value_t = 30.0)]
     pub stuck_after_s: f64,
+    /// History period of the merged map, seconds: every tile keeps its last version of each
+    /// period, so a past session can be scrubbed with the map as it was (0: keep none).
+    #[arg(long, default_value_t = 60)]
+    pub map_history_s: u32,
 }
 
 impl OpsArgs {
@@ -532,6 +536,7 @@ pub async fn start_station(
         zenoh: zc,
         db: db.to_path_buf(),
         alerts,
+        map_history_s: ops.map_history_s,
     })
     .await
     .context("start the station")?;

@@ -25,7 +25,7 @@ pub enum StoreError {
 }
 
 /// Current schema version (`PRAGMA user_version`).
-pub const SCHEMA_VERSION: i64 = 2;
+pub const SCHEMA_VERSION: i64 = 3;
 
 const MIGRATIONS: &[&str] = &[
     // 0 -> 1
@@ -54,6 +54,12 @@ const MIGRATIONS: &[&str] = &[
     "CREATE TABLE zones (zone_id TEXT PRIMARY KEY, json TEXT NOT NULL);
      CREATE TABLE alerts (id INTEGER PRIMARY KEY, json TEXT NOT NULL);
      CREATE TABLE missions (mission_id TEXT PRIMARY KEY, name TEXT NOT NULL, saved_unix_ms INTEGER NOT NULL, json TEXT NOT NULL);",
+    // 2 -> 3: the merged map's history, one version per tile per history period (`bucket`, the
+    // last one in it), for scrubbing past sessions (`crate::history`).
+    "CREATE TABLE tile_history (
+        datum_id TEXT NOT NULL, tx INTEGER NOT NULL, ty INTEGER NOT NULL, bucket INTEGER NOT NULL,
+        t_unix_ms INTEGER NOT NULL, data BLOB NOT NULL, PRIMARY KEY (datum_id, tx, ty, bucket));
+     CREATE INDEX tile_history_time ON tile_history(datum_id, t_unix_ms);",
 ];
 
 /// Opens (creating and migrating) a database with WAL and a busy timeout.
@@ -205,6 +211,21 @@ pub enum StoreOp {
         /// Encoded tile.
         data: Vec<u8>,
     },
+    /// A merged tile into the history: replaces the tile's version of the same `bucket`.
+    TileHistory {
+        /// Datum.
+        datum_id: String,
+        /// Column.
+        tx: i32,
+        /// Row.
+        ty: i32,
+        /// History period ([`crate::history::bucket`]).
+        bucket: u64,
+        /// When the merge made this version, Unix ms.
+        t_unix_ms: u64,
+        /// Encoded tile.
+        data: Vec<u8>,
+    },
     /// Insert or replace a zone (`zones::ZoneRecord` JSON).
     Zone {
         /// Id.
@@ -340,6 +361,21 @@ fn apply(tx: &rusqlite::Transaction<'_>, op: &StoreOp) -> rusqlite::Result<()> {
             tx.execute(
                 "INSERT OR REPLACE INTO tiles VALUES (?1, ?2, ?3, ?4, ?5)",
                 params![datum_id, x, ty, *version as i64, data],
+            )?;
+        }
+        StoreOp::TileHistory {
+            datum_id,
+            tx: x,
+            ty,
+            bucket,
+            t_unix_ms,
+            data,
+        } => {
+            tx.execute(
+                "INSERT INTO tile_history VALUES (?1, ?2, ?3, ?4, ?5, ?6)
+                 ON CONFLICT (datum_id, tx, ty, bucket)
+                 DO UPDATE SET t_unix_ms = excluded.t_unix_ms, data = excluded.data",
+                params![datum_id, x, ty, *bucket as i64, *t_unix_ms as i64, data],
             )?;
         }
         StoreOp::Zone { zone_id, json } => {
@@ -502,6 +538,67 @@ pub fn tiles(c: &Connection, datum_id: Option<&str>) -> Result<Vec<TileRow>, Sto
         })?
         .collect::<Result<Vec<_>, _>>()?;
     Ok(rows)
+}
+
+/// The newest history stamp of `datum_id` at or before `t_unix_ms` (None: no map then).
+pub fn history_key(
+    c: &Connection,
+    datum_id: &str,
+    t_unix_ms: u64,
+) -> Result<Option<u64>, StoreError> {
+    let t: Option<i64> = c.query_row(
+        "SELECT MAX(t_unix_ms) FROM tile_history WHERE datum_id = ?1 AND t_unix_ms <= ?2",
+        params![datum_id, t_unix_ms as i64],
+        |r| r.get(0),
+    )?;
+    Ok(t.map(|t| t as u64))
+}
+
+/// The merged map of `datum_id` as it was at `t_unix_ms`: each tile's newest history version
+/// stamped at or before then, as (datum, tx, ty, stamp Unix ms, encoded).
+pub fn tiles_at(
+    c: &Connection,
+    datum_id: &str,
+    t_unix_ms: u64,
+) -> Result<Vec<TileRow>, StoreError> {
+    let mut st = c.prepare(
+        "SELECT tx, ty, t_unix_ms, data FROM (
+            SELECT tx, ty, t_unix_ms, data,
+                   ROW_NUMBER() OVER (PARTITION BY tx, ty ORDER BY t_unix_ms DESC) AS newest
+            FROM tile_history WHERE datum_id = ?1 AND t_unix_ms <= ?2)
+         WHERE newest = 1",
+    )?;
+    let rows = st
+        .query_map(params![datum_id, t_unix_ms as i64], |r| {
+            Ok((
+                datum_id.to_string(),
+                r.get(0)?,
+                r.get(1)?,
+                r.get::<_, i64>(2)? as u64,
+                r.get(3)?,
+            ))
+        })?
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(rows)
+}
+
+/// What the history of `datum_id` holds: (first stamp, last stamp, rows, bytes), None if empty.
+pub fn history_span(
+    c: &Connection,
+    datum_id: &str,
+) -> Result<Option<(u64, u64, u64, u64)>, StoreError> {
+    let row: (Option<i64>, Option<i64>, i64, Option<i64>) = c.query_row(
+        "SELECT MIN(t_unix_ms), MAX(t_unix_ms), COUNT(*), SUM(LENGTH(data))
+         FROM tile_history WHERE datum_id = ?1",
+        params![datum_id],
+        |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?)),
+    )?;
+    Ok(match row {
+        (Some(a), Some(b), n, bytes) => {
+            Some((a as u64, b as u64, n as u64, bytes.unwrap_or(0) as u64))
+        }
+        _ => None,
+    })
 }
 
 fn session_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<SessionRow> {
@@ -693,6 +790,51 @@ mod tests {
             .pragma_query_value(None, "journal_mode", |r| r.get(0))
             .unwrap();
         assert_eq!(mode, "wal");
+    }
+
+    #[test]
+    fn the_history_keeps_one_version_per_period_and_answers_for_any_time() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("s.db");
+        let w = StoreWriter::start(&p).unwrap();
+        let tx = w.sender();
+        let put = |t: i32, bucket: u64, t_ms: u64, byte: u8| {
+            tx.send(StoreOp::TileHistory {
+                datum_id: "d0".into(),
+                tx: t,
+                ty: 0,
+                bucket,
+                t_unix_ms: t_ms,
+                data: vec![byte],
+            })
+            .unwrap();
+        };
+        put(0, 1, 60_500, 1);
+        put(0, 1, 61_000, 2); // same period: replaces the version above
+        put(0, 2, 125_000, 3);
+        put(1, 2, 130_000, 4);
+        w.finish();
+        let c = open(&p).unwrap();
+        let at = |t: u64| {
+            tiles_at(&c, "d0", t)
+                .unwrap()
+                .into_iter()
+                .map(|(_, tx, _, t_ms, d)| (tx, t_ms, d[0]))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(at(60_000), vec![]);
+        assert_eq!(at(100_000), vec![(0, 61_000, 2)]);
+        assert_eq!(at(127_000), vec![(0, 125_000, 3)]);
+        let mut now = at(200_000);
+        now.sort();
+        assert_eq!(now, vec![(0, 125_000, 3), (1, 130_000, 4)]);
+        assert_eq!(history_key(&c, "d0", 127_000).unwrap(), Some(125_000));
+        assert_eq!(history_key(&c, "d0", 10).unwrap(), None);
+        assert_eq!(
+            history_span(&c, "d0").unwrap(),
+            Some((61_000, 130_000, 3, 3))
+        );
+        assert_eq!(history_span(&c, "d1").unwrap(), None);
     }
 
     #[test]

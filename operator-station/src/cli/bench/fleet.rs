@@ -119,6 +119,7 @@ async fn measure(a: &BenchArgs, dir: &std::path::Path) -> anyhow::Result<serde_j
         zenoh: station::zenoh_config(None, None, std::slice::from_ref(&ep), &[])?,
         db: dir.join("fleet.sqlite"),
         alerts: crate::alerts::AlertConfig::default(),
+        map_history_s: 60,
     })
     .await?;
     let log: Arc<Mutex<StationLog>> = Arc::default();

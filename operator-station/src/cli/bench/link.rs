@@ -200,6 +200,7 @@ async fn one_round(
         zenoh: station_config(link, pki, &ep)?,
         db: db.to_path_buf(),
         alerts: crate::alerts::AlertConfig::default(),
+        map_history_s: 60,
     })
     .await?;
     let mut sessions = Vec::new();
