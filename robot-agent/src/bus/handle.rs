@@ -34,45 +34,41 @@ pub struct BusHandle {
     _stop: Option<tokio::sync::oneshot::Sender<()>>,
 }
 
-/// Hands `m` to the uplink scheduler (tiles are served by the queryable from now on).
-fn queue_out(bus: &RobotBus, uplink: &mut Uplink<Out>, m: Out, now_s: f64) {
-    let cost = |topic: Topic, len: usize| Uplink::<Out>::cost(bus.key_len(topic), len);
-    match m {
+/// A message encoded once, as the uplink counts it and the wire carries it.
+struct Wire {
+    topic: Topic,
+    payload: Vec<u8>,
+}
+
+/// Hands `m` to the uplink scheduler, encoded. What is served on queries (tiles, the session,
+/// routes) is served from now on, even while the uplink holds the message back.
+fn queue_out(bus: &RobotBus, uplink: &mut Uplink<Wire>, m: Out, now_s: f64) {
+    let (topic, payload) = match m {
         Out::Tile(i, b) => {
             bus.serve_tile(i, &b);
-            let bytes = cost(Topic::Tile { tx: i.tx, ty: i.ty }, b.len());
-            uplink.push_tile(i, Out::Tile(i, b), bytes, now_s);
+            let topic = Topic::Tile { tx: i.tx, ty: i.ty };
+            let bytes = Uplink::<Wire>::cost(bus.key_len(topic), b.len());
+            uplink.push_tile(i, Wire { topic, payload: b }, bytes, now_s);
+            return;
         }
         Out::ClearTiles => {
             bus.clear_tiles();
             uplink.clear_tiles();
+            return;
         }
-        m => {
-            let (topic, len) = match &m {
-                Out::Session(s) => (Topic::Session, common::msg::encode(s).len()),
-                Out::Pose(p) => (Topic::Pose, common::msg::encode(p).len()),
-                Out::Path(p) => (Topic::Path, common::msg::encode(p).len()),
-                Out::Status(s) => (Topic::Status, common::msg::encode(s).len()),
-                Out::Route(r) => (Topic::Route, common::msg::encode(r).len()),
-                Out::Tile(..) | Out::ClearTiles => unreachable!("handled above"),
-            };
-            uplink.push_control(m, cost(topic, len));
-        }
-    }
+        Out::Session(s) => (Topic::Session, bus.serve_session(&s)),
+        Out::Pose(p) => (Topic::Pose, common::msg::encode(&p)),
+        Out::Path(p) => (Topic::Path, common::msg::encode(&p)),
+        Out::Status(s) => (Topic::Status, common::msg::encode(&s)),
+        Out::Route(r) => (Topic::Route, bus.serve_route(&r)),
+    };
+    let bytes = Uplink::<Wire>::cost(bus.key_len(topic), payload.len());
+    uplink.push_control(Wire { topic, payload }, bytes);
 }
 
 /// Puts one message the uplink let go on the wire.
-async fn send_out(bus: &RobotBus, out: Out) {
-    let r = match out {
-        Out::Session(s) => bus.publish_session(&s).await,
-        Out::Pose(p) => bus.publish_pose(&p).await,
-        Out::Tile(i, b) => bus.put_tile(i, b).await,
-        Out::Path(p) => bus.publish_path(&p).await,
-        Out::Status(s) => bus.publish_status(&s).await,
-        Out::Route(r) => bus.publish_route(&r).await,
-        Out::ClearTiles => Ok(()),
-    };
-    if let Err(e) = r {
+async fn send_out(bus: &RobotBus, w: Wire) {
+    if let Err(e) = bus.put_encoded(w.topic, w.payload).await {
         tracing::warn!("publish failed: {e}");
     }
 }

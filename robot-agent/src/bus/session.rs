@@ -309,23 +309,67 @@ impl RobotBus {
         keys::key(&self.shared.robot, topic).len()
     }
 
-    /// Publishes (and from now on serves) the session.
-    pub async fn publish_session(&self, s: &Session) -> Result<(), BusError> {
+    /// Serves the session from now on (queries); returns it encoded, for [`Self::put_encoded`].
+    pub fn serve_session(&self, s: &Session) -> Vec<u8> {
         let b = msg::encode(s);
         self.shared.lock_served().session = Some(b.clone());
-        self.put(Topic::Session, b, true).await
+        b
+    }
+
+    /// Serves a recorded route from now on (queries); returns it encoded, for
+    /// [`Self::put_encoded`].
+    pub fn serve_route(&self, r: &Route) -> Vec<u8> {
+        let b = msg::encode(r);
+        self.shared
+            .lock_served()
+            .routes
+            .insert(r.route_id.clone(), b.clone());
+        b
+    }
+
+    /// Puts an encoded message on `topic`: poses best effort (the next one supersedes a lost
+    /// one), everything else reliable.
+    pub async fn put_encoded(&self, topic: Topic, payload: Vec<u8>) -> Result<(), BusError> {
+        let reliable = !matches!(topic, Topic::Pose);
+        self.put(topic, payload, reliable).await
+    }
+
+    /// Publishes (and from now on serves) the session.
+    pub async fn publish_session(&self, s: &Session) -> Result<(), BusError> {
+        let b = self.serve_session(s);
+        self.put_encoded(Topic::Session, b).await
     }
 
     /// Publishes a pose.
     pub async fn publish_pose(&self, p: &Pose) -> Result<(), BusError> {
-        self.put(Topic::Pose, msg::encode(p), false).await
+        self.put_encoded(Topic::Pose, msg::encode(p)).await
+    }
+
+    /// Publishes the planned path.
+    pub async fn publish_path(&self, p: &Path) -> Result<(), BusError> {
+        self.put_encoded(Topic::Path, msg::encode(p)).await
+    }
+
+    /// Publishes the status.
+    pub async fn publish_status(&self, s: &Status) -> Result<(), BusError> {
+        self.put_encoded(Topic::Status, msg::encode(s)).await
+    }
+
+    /// Publishes (and from now on serves) a recorded route.
+    pub async fn publish_route(&self, r: &Route) -> Result<(), BusError> {
+        let b = self.serve_route(r);
+        self.put_encoded(Topic::Route, b).await
     }
 
     /// Publishes a changed tile, already encoded with `common::grid::encode_tile`, and keeps it
     /// for the tile queryable.
     pub async fn publish_tile(&self, index: TileIndex, encoded: Vec<u8>) -> Result<(), BusError> {
         self.serve_tile(index, &encoded);
-        self.put_tile(index, encoded).await
+        let topic = Topic::Tile {
+            tx: index.tx,
+            ty: index.ty,
+        };
+        self.put_encoded(topic, encoded).await
     }
 
     /// Keeps a tile for the tile queryable (the newest version is served at once, even while
@@ -335,39 +379,6 @@ impl RobotBus {
             .lock_served()
             .tiles
             .insert(index, encoded.to_vec());
-    }
-
-    /// Puts a tile on the wire (already served).
-    pub async fn put_tile(&self, index: TileIndex, encoded: Vec<u8>) -> Result<(), BusError> {
-        self.put(
-            Topic::Tile {
-                tx: index.tx,
-                ty: index.ty,
-            },
-            encoded,
-            true,
-        )
-        .await
-    }
-
-    /// Publishes the planned path.
-    pub async fn publish_path(&self, p: &Path) -> Result<(), BusError> {
-        self.put(Topic::Path, msg::encode(p), true).await
-    }
-
-    /// Publishes the status.
-    pub async fn publish_status(&self, s: &Status) -> Result<(), BusError> {
-        self.put(Topic::Status, msg::encode(s), true).await
-    }
-
-    /// Publishes (and from now on serves) a recorded route.
-    pub async fn publish_route(&self, r: &Route) -> Result<(), BusError> {
-        let b = msg::encode(r);
-        self.shared
-            .lock_served()
-            .routes
-            .insert(r.route_id.clone(), b.clone());
-        self.put(Topic::Route, b, true).await
     }
 
     /// Forgets every served tile (a new session starts a new map).
