@@ -222,21 +222,47 @@ impl Agent {
         for shift in &loc.shifts {
             self.terrain.follow_frame(shift);
         }
+        if loc.graph_optimised {
+            // The pose graph moved the past: the map is rebuilt at the corrected poses.
+            let localiser = &self.localiser;
+            match self
+                .terrain
+                .rebuild(scan.stamp_s, localiser.base_from_lidar(), |t| {
+                    localiser.graph_map_from_slam_at(t)
+                }) {
+                Ok(tiles) => {
+                    if !tiles.is_empty() {
+                        let (n, kept) = self.terrain.rebuild_counts();
+                        tracing::info!(
+                            "map rebuilt at {:.2} s after a pose graph correction (rebuild {n}, {kept} sweeps): {} tiles to publish again",
+                            scan.stamp_s,
+                            tiles.len()
+                        );
+                        self.path_dirty = true;
+                    }
+                    self.changed_tiles.extend(tiles);
+                }
+                Err(e) => self.last_error = Some(format!("map rebuild: {e}")),
+            }
+        }
         if loc.trusted {
             // The de-skewed sweep when SLAM made one: the raw one is smeared by the motion.
             let deskewed = loc.deskewed.map(|points| Scan {
                 stamp_s: scan.stamp_s,
                 points,
             });
-            match self.terrain.update(
-                deskewed.as_ref().unwrap_or(scan),
-                &loc.pose_map_lidar,
-                &loc.pose,
-            ) {
+            let sweep = deskewed.as_ref().unwrap_or(scan);
+            match self.terrain.update(sweep, &loc.pose_map_lidar, &loc.pose) {
                 Ok(u) => {
                     rep.classified_cells = u.classified_cells;
                     self.changed_tiles.extend(u.changed_tiles);
                     self.path_dirty |= u.class_changes > 0;
+                    self.terrain.keep_sweep(
+                        sweep.stamp_s,
+                        &loc.slam_from_base,
+                        &loc.pose,
+                        &sweep.points,
+                    );
                 }
                 Err(e) => self.last_error = Some(format!("mapping: {e}")),
             }

@@ -13,7 +13,8 @@
 //!
 //! This file keeps what they share: the cells per tile ([`cell_data::CellData`] and the output
 //! cells), the lookups into them, the changed-tile bookkeeping and the public reads. Frame
-//! corrections are in [`follow_frame`], read-only diagnostics in [`inspect`].
+//! corrections are in [`follow_frame`], swapping in a map rebuilt at corrected poses in
+//! [`rebuild`], read-only diagnostics in [`inspect`].
 
 mod cell_data;
 mod evidence;
@@ -24,6 +25,7 @@ mod free_space;
 mod inflation;
 mod inspect;
 mod negative_obstacles;
+mod rebuild;
 mod reclassify;
 mod window;
 

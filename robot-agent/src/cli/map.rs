@@ -40,6 +40,10 @@ struct EvalArgs {
     /// Print the summary as one JSON object.
     #[arg(long)]
     json: bool,
+    /// Run the pose graph (`on`) or not (`off`) whatever `[graph] enabled` in
+    /// config/slam.toml says.
+    #[arg(long, value_name = "on|off", value_parser = parse_on_off)]
+    graph: Option<bool>,
     /// Mapper configuration (TOML); config/mapper.toml when absent.
     #[arg(long)]
     config: Option<PathBuf>,
@@ -357,10 +361,22 @@ fn probe(
     Ok(())
 }
 
+/// `on` / `off` (also `true` / `false`).
+fn parse_on_off(s: &str) -> Result<bool, String> {
+    match s {
+        "on" | "true" => Ok(true),
+        "off" | "false" => Ok(false),
+        _ => Err(format!("expected on or off, got {s:?}")),
+    }
+}
+
 fn eval(a: EvalArgs) -> anyhow::Result<()> {
     let (scenario, mut opts) =
         eval_options(&a.scenario, a.config.as_deref(), a.use_truth_poses, a.seed)?;
     opts.max_duration_s = a.max_duration;
+    if let Some(on) = a.graph {
+        opts.agent.slam.graph.enabled = on;
+    }
     if let Some(dir) = &a.tiles_out {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         opts.tiles_out = Some(dir.clone());
@@ -388,6 +404,12 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
         eprintln!(
             "errors: {:?}; overhung {} cleared {} one-sided steps {}",
             r.errors, r.overhung_cells, r.cleared_cells, r.one_sided_steps
+        );
+        let o = &r.obstacle_positions;
+        eprintln!(
+            "poles and trunks: {} of {} found, centroid error mean {:.3} m median {:.3} m max {:.3} m, cells {:.3} m from the surface; graph {:?}",
+            o.found, o.objects, o.mean_error_m, o.median_error_m, o.max_error_m,
+            o.mean_surface_distance_m, r.graph
         );
         println!(
             "cells {} accuracy {:.4} obstacle_recall {:.4} false_obstacle_rate {:.4} curb5_10_recall {:.4} ms_per_update {:.2}",

@@ -191,9 +191,20 @@ pub fn run_live(
     args: &MissionArgs,
     listen: &[String],
     seed: u64,
+    follow_drive: bool,
 ) -> anyhow::Result<()> {
     let cfg = agent_config(args)?;
     let opts = options(args, seed)?;
+    let drive = if follow_drive {
+        Some(
+            scenario
+                .drive
+                .as_ref()
+                .context("--follow-drive: the scenario has no [drive] polyline")?,
+        )
+    } else {
+        None
+    };
     let robot = RobotId::new(args.robot.clone()).map_err(|e| anyhow::anyhow!("--robot: {e}"))?;
     let bus = bus_config(args, listen, &robot)?;
     let stop = Arc::new(AtomicBool::new(false));
@@ -202,7 +213,7 @@ pub fn run_live(
     if args.exit_with_parent {
         watch_parent(stop.clone());
     }
-    run::live::run_live(scenario, scenario_name, cfg, robot, bus, &opts, stop)
+    run::live::run_live(scenario, scenario_name, cfg, robot, bus, &opts, drive, stop)
 }
 
 /// The live robot's bus: endpoints, certificates; checked here, before the world is built, so a

@@ -30,7 +30,8 @@ pub struct SimArgs {
     /// Constant command `V,W` (m/s, rad/s).
     #[arg(long, value_parser = parse_drive, allow_hyphen_values = true)]
     pub drive: Option<(f64, f64)>,
-    /// Follow the scenario's `[drive]` polyline with the scripted driver (truth pose).
+    /// Follow the scenario's `[drive]` polyline with the scripted driver (truth pose); live, the
+    /// robot drives it once and then stands, taking commands as before.
     #[arg(long, conflicts_with = "drive")]
     pub follow_drive: bool,
     /// Record the run into this folder.
@@ -147,6 +148,7 @@ pub fn run(args: SimArgs) -> anyhow::Result<()> {
                 &args.mission,
                 &args.listen,
                 args.seed,
+                args.follow_drive,
             );
         }
         return super::mission::run_headless(&scenario, &args.mission, args.seed);

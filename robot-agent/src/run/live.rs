@@ -17,9 +17,12 @@ pub fn run_live(
     robot: RobotId,
     bus_cfg: BusConfig,
     opts: &HeadlessOptions,
+    drive: Option<&sim::scenario::RouteSpec>,
     stop: Arc<AtomicBool>,
 ) -> anyhow::Result<()> {
     let mut rig = Rig::new(scenario, cfg, opts, robot.as_str())?;
+    // `--follow-drive`: the scripted driver has the wheels until the polyline is done.
+    let mut driver = drive.map(|d| sim::drive::PathDriver::new(&d.points, d.speed_mps));
     // The bus loop publishes the agent's changed tiles.
     rig.own_tiles = false;
     let source = format!("sim:{scenario_name}");
@@ -48,6 +51,19 @@ pub fn run_live(
             let applied = apply_command(&mut rig.agent, t, cmd);
             if let (Some(r), Some(c)) = (rig.recorder.as_mut(), applied) {
                 r.command(&c);
+            }
+        }
+        if let Some(d) = driver.as_mut() {
+            if d.is_done() {
+                driver = None;
+                rig.drive_override = None;
+                tracing::info!("drive done at {:.1} s", rig.t_s());
+            } else {
+                let (v, w) = d.command(&rig.sim.truth_pose2());
+                rig.drive_override = Some(agent::Cmd {
+                    v_mps: v,
+                    omega_rps: w,
+                });
             }
         }
         let ev = rig.step();

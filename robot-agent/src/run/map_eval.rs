@@ -130,9 +130,31 @@ pub struct MapEvalReport {
     pub map_digest: String,
     /// Wrong cells by kind: missed obstacles by truth reason, false obstacles by mapper class.
     pub errors: ErrorCounts,
+    /// Where the map put the world's poles and tree trunks against the truth.
+    pub obstacle_positions: super::obstacle_positions::ObstaclePositions,
+    /// The pose graph's work (zero when `[graph] enabled` is false): keyframes, GNSS factors,
+    /// loops, optimisations, map rebuilds and the sweeps kept for them.
+    pub graph: GraphReport,
     /// The wrong cells themselves (global lattice index, kind), for drawing.
     #[serde(skip)]
     pub error_cells: Vec<(i64, i64, ErrorKind)>,
+}
+
+/// The pose graph's counters over a run.
+#[derive(Clone, Copy, Debug, Default, Serialize, PartialEq)]
+pub struct GraphReport {
+    /// Keyframes made.
+    pub keyframes: usize,
+    /// GNSS factors.
+    pub gnss_factors: usize,
+    /// Loops accepted.
+    pub loops: usize,
+    /// Optimisations.
+    pub optimisations: usize,
+    /// Terrain map rebuilds after them.
+    pub map_rebuilds: u64,
+    /// Sweeps kept for rebuilding at the end.
+    pub kept_sweeps: usize,
 }
 
 /// What went wrong in one cell.
@@ -277,6 +299,18 @@ pub fn run(
         &walker_trace,
         &mut rep,
     );
+    rep.obstacle_positions = super::obstacle_positions::score(mapper, scenario);
+    if let Some(g) = rig.agent.localiser().graph_stats() {
+        let (map_rebuilds, kept_sweeps) = rig.agent.terrain().rebuild_counts();
+        rep.graph = GraphReport {
+            keyframes: g.keyframes,
+            gnss_factors: g.gnss_factors,
+            loops: g.loops,
+            optimisations: g.optimisations,
+            map_rebuilds,
+            kept_sweeps,
+        };
+    }
     rep.map_digest = common::grid::map_digest(&mapper.tiles());
     let Rig { agent, .. } = rig;
     Ok((rep, agent.into_mapper()))

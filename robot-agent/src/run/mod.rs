@@ -12,6 +12,7 @@ pub mod io_config;
 pub mod live;
 pub mod map_eval;
 pub mod nav_computer;
+pub mod obstacle_positions;
 pub mod robot;
 pub mod ros2;
 pub mod stages;

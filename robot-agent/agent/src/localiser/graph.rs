@@ -78,6 +78,13 @@ impl GraphLocaliser {
         &self.graph
     }
 
+    /// The graph's best `map<-slam` for a SLAM pose made at `t_s` (its correction there,
+    /// interpolated between keyframes, after the anchoring it started with): where a sweep
+    /// mapped then belongs now. `None` before the first keyframe.
+    pub fn map_from_slam_at(&self, t_s: f64) -> Option<Isometry3<f64>> {
+        Some(self.graph.correction_at(t_s)? * self.map_from_slam0?)
+    }
+
     /// A trusted (RTK fixed) fix: `base_m` is base_link's position in the map frame (the
     /// antenna's lever arm already removed). It goes on the next keyframe made within
     /// `gnss_max_age_s` of it.

@@ -119,6 +119,11 @@ pub struct Localised {
     pub fell_back: bool,
     /// Frame corrections made while localising this sweep (apply before mapping it).
     pub shifts: Vec<FrameShift>,
+    /// `slam<-base_link` at the sweep's stamp: SLAM's own pose, which the pose graph's
+    /// corrections apply to ([`Localiser::graph_map_from_slam_at`]).
+    pub slam_from_base: Isometry3<f64>,
+    /// The pose graph was optimised at this sweep: poses of the past may have moved.
+    pub graph_optimised: bool,
 }
 
 /// Why a sweep could not be localised.
@@ -334,6 +339,17 @@ impl Localiser {
         g.on_fix(t_s, base);
     }
 
+    /// The pose graph's best `map<-slam` for a SLAM pose made at `t_s`, when the graph runs
+    /// and has a keyframe: where a sweep mapped then belongs after its corrections.
+    pub fn graph_map_from_slam_at(&self, t_s: f64) -> Option<Isometry3<f64>> {
+        self.graph.as_ref()?.map_from_slam_at(t_s)
+    }
+
+    /// Whether the pose graph runs (`[graph] enabled`).
+    pub fn graph_enabled(&self) -> bool {
+        self.graph.is_some()
+    }
+
     /// The pose graph's counters, when it runs.
     pub fn graph_stats(&self) -> Option<graph::GraphStats> {
         self.graph.as_ref().map(|g| g.stats())
@@ -416,6 +432,7 @@ impl Localiser {
             map_from_slam = anchored(&self.anchor);
             pose = PoseMap::from_iso(map_from_slam * out.pose_map_base);
         }
+        let mut graph_optimised = false;
         if let Some(g) = self.graph.as_mut() {
             let points = out.deskewed.as_deref().unwrap_or(&scan.points);
             let step = g.on_scan(
@@ -426,6 +443,7 @@ impl Localiser {
                 &map_from_slam,
             );
             if let Some(m) = step.map_from_slam {
+                graph_optimised = true;
                 // The graph's correction at this keyframe becomes the anchoring: the frame moves
                 // by the difference, and what follows frame shifts follows it.
                 let delta = m * map_from_slam.inverse();
@@ -455,6 +473,8 @@ impl Localiser {
             jump_m,
             fell_back: d.fell_back_to_prior,
             shifts,
+            slam_from_base: out.pose_map_base,
+            graph_optimised,
         })
     }
 

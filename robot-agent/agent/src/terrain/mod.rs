@@ -6,6 +6,7 @@
 //! repeating, the taught route's corridor grid.
 
 pub mod layers;
+pub mod rebuild;
 
 use crate::config::AgentConfig;
 use crate::localiser::{FrameShift, PoseMap};
@@ -65,6 +66,10 @@ pub struct TerrainMap {
     corridor_rule: CorridorRule,
     map_follow_radius_m: f64,
     cleared_cells: usize,
+    /// Sweeps kept for rebuilding after the pose graph's corrections (with `[graph] enabled`).
+    kept: Option<rebuild::SweepStore>,
+    /// Rebuilds done.
+    rebuilds: u64,
 }
 
 impl TerrainMap {
@@ -86,6 +91,14 @@ impl TerrainMap {
             },
             map_follow_radius_m: cfg.gnss.map_follow_radius_m,
             cleared_cells: 0,
+            kept: cfg.slam.graph.enabled.then(|| {
+                rebuild::SweepStore::new(
+                    cfg.slam.graph.map_rebuild_spacing_m,
+                    cfg.slam.graph.map_rebuild_min_move_m,
+                    cfg.mapper.max_range_m,
+                )
+            }),
+            rebuilds: 0,
         })
     }
 
@@ -120,6 +133,52 @@ impl TerrainMap {
         let u = self.mapper.update_sweep(points_map, sensor_m, robot, t_s)?;
         self.cleared_cells += u.cleared_cells;
         Ok(u)
+    }
+
+    /// A sweep just mapped (lidar frame) at `pose` from the SLAM pose `slam_from_base`: kept
+    /// for rebuilding when the pose graph runs and the robot moved far enough since the last.
+    pub fn keep_sweep(
+        &mut self,
+        t_s: f64,
+        slam_from_base: &nalgebra::Isometry3<f64>,
+        pose: &PoseMap,
+        points: &[sensing::Point],
+    ) {
+        if let Some(k) = self.kept.as_mut() {
+            k.offer(t_s, slam_from_base, &pose.iso, points);
+        }
+    }
+
+    /// The pose graph moved the past: when some kept sweep moved by more than
+    /// `map_rebuild_min_move_m`, the map is rebuilt from the kept sweeps at their corrected
+    /// poses (`map_from_slam_at(t)`, `map<-slam` for a pose made at `t`) and replaces this one,
+    /// its observed cells stamped `t_s` (the correction's time). Returns the tiles to publish again (empty when nothing was rebuilt).
+    pub fn rebuild(
+        &mut self,
+        t_s: f64,
+        base_from_lidar: &nalgebra::Isometry3<f64>,
+        map_from_slam_at: impl Fn(f64) -> Option<nalgebra::Isometry3<f64>>,
+    ) -> Result<Vec<TileIndex>, mapping::MapError> {
+        let Some(kept) = self.kept.as_mut() else {
+            return Ok(Vec::new());
+        };
+        let Some(sweeps) = kept.corrected(map_from_slam_at) else {
+            return Ok(Vec::new());
+        };
+        let mut fresh = mapping::Mapper::new(self.mapper.config().clone())?;
+        for r in &sweeps {
+            let (pts, origin) = rebuild::to_map(r, base_from_lidar);
+            let robot = robot_pose(&PoseMap::from_iso(r.map_from_base));
+            let u = fresh.update_sweep(pts, origin, &robot, r.t_s)?;
+            self.cleared_cells += u.cleared_cells;
+        }
+        self.rebuilds += 1;
+        Ok(self.mapper.replace_with(fresh, t_s))
+    }
+
+    /// Rebuilds after pose graph corrections, and the sweeps kept for them.
+    pub fn rebuild_counts(&self) -> (u64, usize) {
+        (self.rebuilds, self.kept.as_ref().map_or(0, |k| k.len()))
     }
 
     /// Cells whose stale evidence free space cleared, since the start.

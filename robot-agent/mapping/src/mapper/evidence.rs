@@ -323,6 +323,6 @@ impl Mapper {
 }
 
 /// A cell's stamp for an update at `t_s`: whole seconds, clamped into `u32`.
-fn stamp_of(t_s: f64) -> u32 {
+pub(super) fn stamp_of(t_s: f64) -> u32 {
     t_s.max(0.0).min(f64::from(u32::MAX)) as u32
 }

@@ -87,6 +87,12 @@ pub struct GraphConfig {
     /// A GNSS factor this long after the previous one is RTK back after an outage: the graph is
     /// optimised then, seconds.
     pub outage_min_s: f64,
+    /// The terrain map keeps a sweep for rebuilding after this much travel since the last kept
+    /// one, metres (the agent's map rebuild after a correction).
+    pub map_rebuild_spacing_m: f64,
+    /// The terrain map is rebuilt when a correction moves some kept sweep by more than this,
+    /// metres.
+    pub map_rebuild_min_move_m: f64,
 }
 
 impl Default for GraphConfig {
@@ -119,6 +125,8 @@ impl Default for GraphConfig {
             keyframe_voxel_m: 0.3,
             gnss_max_age_s: 0.2,
             outage_min_s: 5.0,
+            map_rebuild_spacing_m: 0.5,
+            map_rebuild_min_move_m: 0.05,
         }
     }
 }

@@ -1,0 +1,158 @@
+//! Replacing the whole map by one rebuilt from the same sweeps at corrected poses (a pose graph
+//! moved the trajectory: a loop closed, or RTK came back after an outage; docs/algorithms.md
+//! §3.7). The rebuilt map is made by the caller with a fresh [`Mapper`]; this swaps it in and
+//! says which tiles a station must be sent again.
+
+use super::{Mapper, TileSlot};
+use common::grid::{Cell, CellState, TileIndex};
+
+impl Mapper {
+    /// Replaces this map by `rebuilt` (same configuration, fed the kept sweeps at their
+    /// corrected poses) and returns every tile to publish again, sorted: all tiles of the
+    /// rebuilt map, and the tiles only this map held, which stay as unknown cells so that a
+    /// station replaces what it was sent of them (the drifted copy of an obstacle must go).
+    /// Counters and the time stay monotonic: the later of the two maps' last update is kept.
+    ///
+    /// Every observed cell of the rebuilt map is stamped `t_s`, the time of the correction: a
+    /// station keeps, per cell, the evidence with the newest stamp (docs/algorithms.md §8.3), and
+    /// the sweeps behind a rebuilt cell are older than what it was sent of that cell before, yet
+    /// where they put things is newer knowledge.
+    pub fn replace_with(&mut self, mut rebuilt: Mapper, t_s: f64) -> Vec<TileIndex> {
+        let stamp = super::evidence::stamp_of(t_s);
+        for s in &mut rebuilt.slots {
+            for d in &mut s.data {
+                d.stamp_s = d.stamp_s.max(stamp);
+            }
+            for c in s.live.iter_mut().filter(|c| c.state != CellState::Unknown) {
+                c.stamp_s = c.stamp_s.max(stamp);
+            }
+        }
+        let n = self.lattice.tile_cells as usize;
+        for s in &self.slots {
+            if rebuilt.slot(s.index).is_none() {
+                rebuilt.slots.push(TileSlot {
+                    index: s.index,
+                    data: vec![Default::default(); n * n],
+                    ground: vec![f32::INFINITY; n * n],
+                    live: vec![Cell::UNKNOWN; n * n],
+                    changed: false,
+                });
+                rebuilt.slot_of.insert(s.index, rebuilt.slots.len() - 1);
+            }
+        }
+        rebuilt.last_t_s = match (self.last_t_s, rebuilt.last_t_s) {
+            (Some(a), Some(b)) => Some(a.max(b)),
+            (a, b) => a.or(b),
+        };
+        rebuilt.full = self.full;
+        rebuilt.scan_id = rebuilt.scan_id.max(self.scan_id);
+        rebuilt
+            .last_slot
+            .set((TileIndex { tx: 0, ty: 0 }, usize::MAX));
+        // Every tile goes out again: the publisher sends only those whose cells differ.
+        let mut tiles: Vec<TileIndex> = rebuilt.slots.iter().map(|s| s.index).collect();
+        for s in &mut rebuilt.slots {
+            s.changed = false;
+        }
+        tiles.sort_unstable();
+        *self = rebuilt;
+        tiles
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::synth::{cast_scan, LidarSpec, Rng};
+    use crate::{Class, Config, Mapper, RobotPose};
+
+    /// Flat ground with a 1 m box at (6, 0).
+    fn world(x: f64, y: f64) -> f64 {
+        if (x - 6.0).abs() < 0.5 && y.abs() < 0.5 {
+            1.0
+        } else {
+            0.0
+        }
+    }
+
+    /// Maps a drive along y = 0 whose sweeps are placed `offset_y` off (a drifted pose).
+    fn mapped(offset_y: f64) -> Mapper {
+        let spec = LidarSpec {
+            az_step_deg: 0.4,
+            max_range_m: 20.0,
+            ..LidarSpec::vlp16()
+        };
+        let mut m = Mapper::new(Config::default()).unwrap();
+        let mut rng = Rng::new(3);
+        for i in 0..6 {
+            let x = f64::from(i);
+            let mut pts = cast_scan(&world, [x, 0.0, 0.7], &spec, &mut rng);
+            for p in &mut pts {
+                p[1] += offset_y as f32;
+            }
+            let robot = RobotPose {
+                x_m: x,
+                y_m: offset_y,
+                z_m: 0.0,
+                yaw_rad: 0.0,
+            };
+            m.update_sweep(pts, [x, offset_y, 0.7], &robot, 10.0 + f64::from(i) * 0.1)
+                .unwrap();
+        }
+        m
+    }
+
+    /// Obstacle cells (class before inflation) with centres in `[x0, x1] x [y0, y1]`.
+    fn obstacles_in(m: &Mapper, (x0, x1): (f64, f64), (y0, y1): (f64, f64)) -> usize {
+        let l = m.lattice();
+        let (c0, r0) = l.cell_of(x0, y0);
+        let (c1, r1) = l.cell_of(x1, y1);
+        (r0..=r1)
+            .flat_map(|r| (c0..=c1).map(move |c| (c, r)))
+            .filter(|&(c, r)| m.class(c, r) == Class::Obstacle)
+            .count()
+    }
+
+    #[test]
+    fn a_rebuilt_map_replaces_the_drifted_one_and_every_tile_goes_out_again() {
+        let mut drifted = mapped(1.0);
+        // North of the true box (y > 0.5) only the drifted copy has obstacles.
+        let north = ((5.3, 6.7), (0.9, 1.7));
+        assert!(
+            obstacles_in(&drifted, north.0, north.1) > 0,
+            "the box where drift put it"
+        );
+        let before: Vec<_> = drifted.tiles().iter().map(|t| t.index).collect();
+        let tiles = drifted.replace_with(mapped(0.0), 17.0);
+        assert!(
+            obstacles_in(&drifted, (5.3, 6.7), (-0.7, 0.7)) > 0,
+            "the box where it is"
+        );
+        assert_eq!(
+            obstacles_in(&drifted, north.0, north.1),
+            0,
+            "the drifted copy is gone"
+        );
+        let l = drifted.lattice();
+        let (sx, sy) = l.cell_of(3.0, 0.0);
+        assert_eq!(
+            drifted.cell(sx, sy).stamp_s,
+            17,
+            "rebuilt cells carry the correction's time"
+        );
+        for t in &before {
+            assert!(
+                tiles.contains(t),
+                "tile {t:?} held before is published again"
+            );
+        }
+        assert!(tiles.windows(2).all(|w| w[0] < w[1]));
+        // The map goes on: a later sweep is accepted, an earlier one is not.
+        let robot = RobotPose::default();
+        assert!(drifted
+            .update_sweep(Vec::new(), [0.0, 0.0, 0.7], &robot, 10.6)
+            .is_ok());
+        assert!(drifted
+            .update_sweep(Vec::new(), [0.0, 0.0, 0.7], &robot, 10.1)
+            .is_err());
+    }
+}
