@@ -1001,7 +1001,7 @@ function updateRecordButton() {
   const rec = isRecording();
   recordBtn.textContent = rec ? "■ Stop recording" : "● Record";
   recordBtn.classList.toggle("recording", rec);
-  document.getElementById("record-name").disabled = rec;
+  document.getElementById("record-name").disabled = rec || state.readOnly;
 }
 document.getElementById("record-form").addEventListener("submit", async (ev) => {
   ev.preventDefault();
