@@ -16,10 +16,10 @@ use common::command::CommandStamper;
 use common::keys::{self, RobotId, Topic};
 use common::msg::{self, GoalCmd, GoalTarget, Pose};
 use common::security::{CertFiles, FleetDir};
-use robot_agent::bus::{BusConfig, BusHandle, Command as BusCommand, ZenohSettings};
+use robot_agent::bus::{BusConfig, BusHandle, Command as BusCommand, ZenohMode, ZenohSettings};
 use serde_json::Value;
 use station_support::*;
-use support::{bin, free_port};
+use support::{bin, free_port, KillOnDrop};
 
 const LIMIT: Duration = Duration::from_secs(20);
 
@@ -350,6 +350,76 @@ fn a_monitor_watches_the_fleet_and_cannot_command_it() {
     println!("revoked monitor certificate: {links} link(s), {heard} samples");
     println!(
         "monitor test done in {:.1} s",
+        t_start.elapsed().as_secs_f64()
+    );
+}
+
+#[test]
+fn a_router_lets_a_monitor_watch_and_not_command() {
+    let t_start = Instant::now();
+    let dir = tempfile::tempdir().unwrap();
+    let pki_dir: PathBuf = dir.path().join("pki");
+    let ps = pki_dir.to_str().unwrap();
+    pki(&["init", "--dir", ps]);
+    pki(&["issue", "--robot", "r1", "--dir", ps]);
+    pki(&["add-monitor", "--name", "m1", "--dir", ps]);
+    let fleet = FleetDir::new(&pki_dir);
+
+    // `operator-station router` (the station's certificate and rules, read from the register),
+    // the robot a client of it.
+    let rp = free_port();
+    let log = std::fs::File::create(dir.path().join("router.log")).unwrap();
+    let _router = KillOnDrop::spawn(
+        Command::new(bin("operator-station"))
+            .args(["router", "--pki", ps, "--zenoh-listen", &secure_ep(rp)])
+            .env("RUST_LOG", "info,zenoh=warn")
+            .stdout(std::process::Stdio::null())
+            .stderr(log),
+    )
+    .expect("start the router");
+    assert!(
+        wait_for(LIMIT, || std::net::TcpStream::connect(("127.0.0.1", rp))
+            .is_ok()),
+        "router never listened"
+    );
+    let r1 = RobotId::new("r1").unwrap();
+    let mut cfg = BusConfig::new(r1.clone());
+    cfg.zenoh = ZenohSettings {
+        mode: Some(ZenohMode::Client),
+        connect: vec![secure_ep(rp)],
+        tls: Some(CertFiles::robot(&fleet.robot_dir(&r1))),
+        ..ZenohSettings::default()
+    };
+    let bus = BusHandle::start(cfg).expect("open the robot bus");
+
+    // The monitor's certificate, a client of the router: it reads the robot's poses ...
+    let monitor = Raw::open(
+        &[secure_ep(rp)],
+        &CertFiles::monitor(&fleet.monitor_dir("m1")),
+        true,
+    );
+    let mut seq = 0;
+    let heard = monitor.samples_while(Duration::from_secs(2), || {
+        seq += 1;
+        bus.publish_pose(&pose(seq, 1.0));
+    });
+    assert!(
+        heard >= 5,
+        "the monitor heard {heard} poses through the router"
+    );
+    // ... and its goal is dropped at the router, while the station certificate's passes.
+    monitor.put_goal(&r1, 601);
+    let got = goals_within(&bus, Duration::from_secs(3));
+    assert!(
+        got.is_empty(),
+        "goals from the monitor's certificate: {got:?}"
+    );
+    let operator = Raw::open(&[secure_ep(rp)], &fleet.station(), true);
+    std::thread::sleep(Duration::from_millis(500));
+    operator.put_goal(&r1, 602);
+    assert_eq!(goals_within(&bus, Duration::from_secs(5)), vec![602]);
+    println!(
+        "router test done in {:.1} s ({heard} poses heard by the monitor in 2 s)",
         t_start.elapsed().as_secs_f64()
     );
 }
