@@ -313,12 +313,17 @@ fn a_monitor_watches_the_fleet_and_cannot_command_it() {
     // Revoked: the station re-reads the register and re-opens its session; the monitor sees the
     // robot go offline and nothing of it after, while the station still does.
     pki(&["revoke-monitor", "--name", "m1", "--dir", ps]);
+    let t_revoked = Instant::now();
     let blind = wait_for(LIMIT, || {
         seq += 1;
         bus.publish_pose(&pose(seq, 4.0));
         robot_entry(mp.http, "r1").is_some_and(|r| r["online"] == false)
     });
     assert!(blind, "revoked monitor: {:?}", robot_entry(mp.http, "r1"));
+    println!(
+        "revoked monitor shows r1 offline {:.1} s after pki revoke-monitor",
+        t_revoked.elapsed().as_secs_f64()
+    );
     assert!(
         wait_for(LIMIT, || {
             seq += 1;
