@@ -25,7 +25,7 @@ const LIMIT: Duration = Duration::from_secs(20);
 
 /// The secure endpoint of a loopback port: the one place the scheme is chosen.
 fn secure_ep(port: u16) -> String {
-    format!("tls/127.0.0.1:{port}")
+    format!("{}/127.0.0.1:{port}", common::security::SECURE_SCHEME)
 }
 
 /// `operator-station pki ARGS`, asserting success; its JSON line.
@@ -70,6 +70,11 @@ struct Raw {
 
 impl Raw {
     fn open(connect: &[String], files: &CertFiles, client: bool) -> Raw {
+        Self::try_open(connect, files, client).expect("open zenoh")
+    }
+
+    /// As [`Raw::open`]; a client that cannot link fails to open.
+    fn try_open(connect: &[String], files: &CertFiles, client: bool) -> Result<Raw, String> {
         let rt = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(1)
             .enable_all()
@@ -89,8 +94,8 @@ impl Raw {
         set("transport/link/tls/connect_private_key", path(&files.key));
         let session = rt
             .block_on(async { zenoh::open(c).await })
-            .expect("open zenoh");
-        Raw { rt, session }
+            .map_err(|e| e.to_string())?;
+        Ok(Raw { rt, session })
     }
 
     /// Links (peers or routers) up after up to `wait`.
@@ -382,11 +387,19 @@ fn a_router_lets_a_monitor_watch_and_not_command() {
             .stderr(log),
     )
     .expect("start the router");
-    assert!(
-        wait_for(LIMIT, || std::net::TcpStream::connect(("127.0.0.1", rp))
-            .is_ok()),
-        "router never listened"
-    );
+    // The monitor's certificate, a client of the router (retried until the router listens).
+    let t0 = Instant::now();
+    let monitor = loop {
+        match Raw::try_open(
+            &[secure_ep(rp)],
+            &CertFiles::monitor(&fleet.monitor_dir("m1")),
+            true,
+        ) {
+            Ok(r) => break r,
+            Err(e) if t0.elapsed() > LIMIT => panic!("the router never took the monitor: {e}"),
+            Err(_) => std::thread::sleep(Duration::from_millis(200)),
+        }
+    };
     let r1 = RobotId::new("r1").unwrap();
     let mut cfg = BusConfig::new(r1.clone());
     cfg.zenoh = ZenohSettings {
@@ -397,12 +410,7 @@ fn a_router_lets_a_monitor_watch_and_not_command() {
     };
     let bus = BusHandle::start(cfg).expect("open the robot bus");
 
-    // The monitor's certificate, a client of the router: it reads the robot's poses ...
-    let monitor = Raw::open(
-        &[secure_ep(rp)],
-        &CertFiles::monitor(&fleet.monitor_dir("m1")),
-        true,
-    );
+    // The monitor reads the robot's poses ...
     let mut seq = 0;
     let heard = monitor.samples_while(Duration::from_secs(2), || {
         seq += 1;

@@ -22,6 +22,8 @@ use crate::station_support::{strip_ansi, tail};
 
 /// Zenoh port of the router and the stations (each namespace has its own ports).
 pub const ZENOH_PORT: u16 = 7447;
+/// The link scheme of every endpoint: the product's secure default (mutual TLS over QUIC).
+pub const SCHEME: &str = common::security::SECURE_SCHEME;
 /// HTTP port of the stations, on their own loopback.
 pub const HTTP_PORT: u16 = 8080;
 
@@ -389,7 +391,7 @@ impl Site {
                 "--pki",
                 &self.pki.display().to_string(),
                 "--zenoh-listen",
-                &format!("tls/0.0.0.0:{ZENOH_PORT}"),
+                &format!("{SCHEME}/0.0.0.0:{ZENOH_PORT}"),
             ]),
             &self.dir,
         )
@@ -408,9 +410,9 @@ impl Site {
                 "--pki",
                 &self.pki.display().to_string(),
                 "--zenoh-listen",
-                &format!("tls/0.0.0.0:{ZENOH_PORT}"),
+                &format!("{SCHEME}/0.0.0.0:{ZENOH_PORT}"),
                 "--connect",
-                &format!("tls/{ROUTER_A_FOR_B}:{ZENOH_PORT}"),
+                &format!("{SCHEME}/{ROUTER_A_FOR_B}:{ZENOH_PORT}"),
             ]),
             &self.dir,
         )
@@ -427,7 +429,7 @@ impl Site {
                 .arg(&self.pki)
                 .args([
                     "--connect",
-                    &format!("tls/{}:{ZENOH_PORT}", router_for_station(i)),
+                    &format!("{SCHEME}/{}:{ZENOH_PORT}", router_for_station(i)),
                 ])
                 .arg("--db")
                 .arg(&db),
@@ -462,7 +464,7 @@ impl Site {
                 .arg("--pki")
                 .arg(self.pki.join("robots").join(id))
                 .args(["--zenoh", "config/zenoh/router-client.json5", "--connect"])
-                .arg(format!("tls/{ROUTER_FOR_ROBOT}:{ZENOH_PORT}"))
+                .arg(format!("{SCHEME}/{ROUTER_FOR_ROBOT}:{ZENOH_PORT}"))
                 .arg("--truth-out")
                 .arg(truth),
             &self.dir,
@@ -480,7 +482,7 @@ impl Site {
             .arg(&self.pki)
             .args([
                 "--connect",
-                &format!("tls/{}:{ZENOH_PORT}", router_for_station(i)),
+                &format!("{SCHEME}/{}:{ZENOH_PORT}", router_for_station(i)),
             ])
             .args(["--robot", id, "--out"])
             .arg(&out)
@@ -644,7 +646,7 @@ impl Site {
             );
             cfg.zenoh = robot_agent::bus::ZenohSettings {
                 mode: Some(robot_agent::bus::ZenohMode::Client),
-                connect: vec![format!("tls/{ROUTER_FOR_ROBOT}:{ZENOH_PORT}")],
+                connect: vec![format!("{SCHEME}/{ROUTER_FOR_ROBOT}:{ZENOH_PORT}")],
                 tls: Some(files),
                 ..Default::default()
             };

@@ -1,5 +1,5 @@
 //! Secure links (issue 17), with real processes on loopback: `operator-station pki` makes a fleet,
-//! `operator-station serve --pki` listens on `tls/127.0.0.1:PORT`, robots join with their own
+//! `operator-station serve --pki` listens on `quic/127.0.0.1:PORT` (mutual TLS over QUIC), robots join with their own
 //! certificates (`robot-agent sim --pki`, or the real robot bus with certificates for what a
 //! simulated robot cannot do on cue). Intruders are Zenoh sessions of the test itself with no
 //! certificate, a certificate of another fleet's CA, or another robot's certificate; each one is
@@ -54,8 +54,9 @@ fn fleet(dir: &Path, name: &str, robots: &[&str]) -> PathBuf {
     p
 }
 
-fn tls_ep(port: u16) -> String {
-    format!("tls/127.0.0.1:{port}")
+/// A secure loopback endpoint, in the scheme the product defaults to.
+fn secure_ep(port: u16) -> String {
+    format!("{}/127.0.0.1:{port}", common::security::SECURE_SCHEME)
 }
 
 /// A secure station on `ports.zenoh`.
@@ -67,7 +68,7 @@ fn secure_station(ports: Ports, pki_dir: &Path, db: &Path) -> Station {
             "--pki".into(),
             pki_dir.display().to_string(),
             "--zenoh-listen".into(),
-            tls_ep(ports.zenoh),
+            secure_ep(ports.zenoh),
         ],
     )
 }
@@ -261,7 +262,7 @@ fn authorised_station_commands_a_secure_robot_and_a_replay_is_refused() {
     let mut r1 = Robot::start_with(
         "r1",
         &field_scenario(),
-        &tls_ep(ports.zenoh),
+        &secure_ep(ports.zenoh),
         "0,0,0",
         1,
         dir.path(),
@@ -269,7 +270,7 @@ fn authorised_station_commands_a_secure_robot_and_a_replay_is_refused() {
             "--pki".into(),
             pki_dir.join("robots/r1").display().to_string(),
             "--listen".into(),
-            tls_ep(r1_port),
+            secure_ep(r1_port),
         ],
     );
     let up = wait_for(ROBOT_UP, || {
@@ -282,7 +283,7 @@ fn authorised_station_commands_a_secure_robot_and_a_replay_is_refused() {
     // captures the operator's goal as it goes out.
     let station_files = FleetDir::new(&pki_dir).station();
     let eyes = Client::open(
-        &[tls_ep(ports.zenoh), tls_ep(r1_port)],
+        &[secure_ep(ports.zenoh), secure_ep(r1_port)],
         Some(&station_files.ca),
         Some((&station_files.cert, &station_files.key)),
     );
@@ -374,12 +375,12 @@ fn strangers_cannot_connect_and_another_robot_can_neither_command_nor_read_nor_i
     let bus = Arc::new(Mutex::new(secure_bus(
         "r1",
         robot_files(&pki_dir, "r1"),
-        &tls_ep(ports.zenoh),
-        Some(&tls_ep(r1_port)),
+        &secure_ep(ports.zenoh),
+        Some(&secure_ep(r1_port)),
     )));
     let _pump = PosePump::start(bus.clone());
     assert!(wait_for(LIMIT, || online(ports.http, "r1")), "r1 online");
-    let targets = [tls_ep(ports.zenoh), tls_ep(r1_port)];
+    let targets = [secure_ep(ports.zenoh), secure_ep(r1_port)];
     let ca = FleetDir::new(&pki_dir).ca_cert();
 
     // No certificate at all, over TLS and over plain TCP to the TLS ports: no link.
@@ -488,7 +489,7 @@ fn revoked_robot_is_refused_at_its_next_connection() {
     for f in ["ca.crt", "robot.crt", "robot.key"] {
         std::fs::copy(pki_dir.join("robots/r1").join(f), stolen.join(f)).unwrap();
     }
-    let ep = tls_ep(ports.zenoh);
+    let ep = secure_ep(ports.zenoh);
     let r1 = secure_bus("r1", CertFiles::robot(&stolen), &ep, None);
     let r2 = secure_bus("r2", robot_files(&pki_dir, "r2"), &ep, None);
     assert!(wait_for(LIMIT, || online(ports.http, "r1")
@@ -678,7 +679,7 @@ fn http_api_over_tls_keeps_its_token() {
                 "sesame",
             ])
             .args(["--pki", &pki_dir.display().to_string()])
-            .args(["--zenoh-listen", &tls_ep(ports.zenoh)])
+            .args(["--zenoh-listen", &secure_ep(ports.zenoh)])
             .arg("--tls-cert")
             .arg(&s.cert)
             .arg("--tls-key")

@@ -150,9 +150,37 @@ impl CertFiles {
     }
 }
 
+/// The link scheme of secure endpoints in defaults, advice and shipped configs. QUIC carries the
+/// same mutual TLS 1.3 authentication as `tls/` (Zenoh reads both from `transport/link/tls`), but
+/// its send and receive streams are separate objects: Zenoh's `tls/` link reads and writes one
+/// rustls session from two tasks at once (eclipse-zenoh/zenoh#2557), which aborted a robot in our
+/// CI with a corrupted allocation. `tls/` stays accepted for peers that speak nothing else.
+pub const SECURE_SCHEME: &str = "quic";
+
+/// Whether `proto` is a link scheme that carries the fleet's mutual TLS authentication.
+pub fn is_secure_scheme(proto: &str) -> bool {
+    matches!(proto, "quic" | "tls")
+}
+
+/// A warning for each `tls/` endpoint (see [`SECURE_SCHEME`] for why), to log once at start.
+pub fn tls_link_warnings(endpoints: &[(Direction, String)]) -> Vec<String> {
+    endpoints
+        .iter()
+        .filter(|(_, ep)| protocol(ep) == "tls")
+        .map(|(_, ep)| {
+            format!(
+                "{ep}: Zenoh's tls/ link shares one TLS session between its reader and writer \
+                 tasks (eclipse-zenoh/zenoh#2557) and can abort the process; prefer {SECURE_SCHEME}/{}",
+                ep.split_once('/').map_or(ep.as_str(), |(_, a)| a)
+            )
+        })
+        .collect()
+}
+
 /// Zenoh settings (key, json5 value) for TLS with mutual authentication against the fleet CA,
 /// both when this side listens and when it connects. Names are verified on connect (the station's
 /// certificate names the hosts it is reached by), and a link closes when a certificate expires.
+/// Zenoh's `quic/` and `tls/` links both read these keys.
 pub fn tls_settings(files: &CertFiles) -> Vec<(&'static str, String)> {
     let path = |p: &Path| Value::String(p.display().to_string()).to_string();
     vec![
@@ -424,12 +452,12 @@ fn advice(side: Side) -> &'static str {
         Side::Station => {
             "set up the fleet's certificates once with `operator-station pki init --dir pki` \
              (and `pki issue --robot ID --dir pki` per robot), then run \
-             `operator-station serve --pki pki --zenoh-listen tls/0.0.0.0:7447`; \
+             `operator-station serve --pki pki --zenoh-listen quic/0.0.0.0:7447`; \
              or keep Zenoh on 127.0.0.1 (the default)"
         }
         Side::Robot => {
             "on the station run `operator-station pki issue --robot ID --dir pki`, copy \
-             pki/robots/ID/ to the robot, then run with `--pki DIR --connect tls/STATION:7447`; \
+             pki/robots/ID/ to the robot, then run with `--pki DIR --connect quic/STATION:7447`; \
              or keep Zenoh on 127.0.0.1"
         }
     }
@@ -437,7 +465,8 @@ fn advice(side: Side) -> &'static str {
 
 /// Checks the Zenoh endpoints a process is about to use. Without a PKI (`secure` false) every
 /// endpoint must be loopback TCP or UDP: a plain link off loopback lets anyone on that network
-/// read every pose and drive the robots. With a PKI every endpoint must be `tls/`.
+/// read every pose and drive the robots. With a PKI every endpoint must be `quic/` or `tls/`
+/// (mutual TLS against the fleet CA).
 pub fn check_endpoints(
     side: Side,
     secure: bool,
@@ -450,21 +479,21 @@ pub fn check_endpoints(
         };
         let proto = protocol(ep);
         if secure {
-            if proto != "tls" {
+            if !is_secure_scheme(proto) {
                 return Err(EndpointRefused(format!(
-                    "refusing to {verb} {ep} with --pki: secure links are TLS with mutual \
-                     authentication, give it as tls/{}",
+                    "refusing to {verb} {ep} with --pki: secure links are QUIC (or TLS) with \
+                     mutual authentication, give it as {SECURE_SCHEME}/{}",
                     ep.split_once('/').map_or(ep.as_str(), |(_, a)| a)
                 )));
             }
-        } else if proto == "tls" {
+        } else if is_secure_scheme(proto) {
             return Err(EndpointRefused(format!(
-                "refusing to {verb} {ep} without --pki: TLS needs the fleet's certificates; {}",
+                "refusing to {verb} {ep} without --pki: {proto}/ needs the fleet's certificates; {}",
                 advice(side)
             )));
         } else if !matches!(proto, "tcp" | "udp") {
             return Err(EndpointRefused(format!(
-                "refusing to {verb} {ep}: only tcp/ and udp/ on loopback, or tls/ with --pki"
+                "refusing to {verb} {ep}: only tcp/ and udp/ on loopback, or {SECURE_SCHEME}/ with --pki"
             )));
         } else if !is_loopback_endpoint(ep) {
             return Err(EndpointRefused(format!(
@@ -704,17 +733,32 @@ mod tests {
         assert!(check_endpoints(
             Side::Robot,
             false,
-            &[(Connect, "tls/127.0.0.1:7447".into())]
+            &[(Connect, "quic/127.0.0.1:7447".into())]
         )
         .is_err());
-        // With a PKI: TLS everywhere, loopback or not.
-        assert!(
-            check_endpoints(Side::Robot, true, &[(Connect, "tls/10.0.0.5:7447".into())]).is_ok()
-        );
+        // With a PKI: QUIC or TLS everywhere, loopback or not.
+        for ep in ["quic/10.0.0.5:7447", "tls/10.0.0.5:7447"] {
+            assert!(check_endpoints(Side::Robot, true, &[(Connect, ep.into())]).is_ok());
+        }
         let e = check_endpoints(Side::Robot, true, &[(Connect, "tcp/127.0.0.1:7447".into())])
             .unwrap_err()
             .to_string();
-        assert!(e.contains("tls/127.0.0.1:7447"), "{e}");
+        assert!(e.contains("quic/127.0.0.1:7447"), "{e}");
+    }
+
+    #[test]
+    fn tls_links_are_warned_about_and_quic_links_are_not() {
+        use Direction::*;
+        let eps = [
+            (Listen, "quic/0.0.0.0:7447".to_string()),
+            (Connect, "tls/10.0.0.5:7447".to_string()),
+        ];
+        let w = tls_link_warnings(&eps);
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(
+            w[0].contains("zenoh#2557") && w[0].contains("quic/10.0.0.5:7447"),
+            "{w:?}"
+        );
     }
 
     #[test]

@@ -116,11 +116,16 @@ pub fn apply_monitor(c: &mut zenoh::Config, dir: &Path, name: &str) -> anyhow::R
 }
 
 /// Refuses a config that would listen on or connect to a plain link off loopback (or, when
-/// `secure`, anything but `tls/`), with what to do instead.
+/// `secure`, anything but `quic/` or `tls/`), with what to do instead; warns once per `tls/`
+/// endpoint (see [`security::SECURE_SCHEME`]).
 pub fn check_endpoints(c: &zenoh::Config, secure: bool) -> anyhow::Result<()> {
     let eps = security::config_endpoints(|k| c.get_json(k).map_err(|e| e.to_string()))
         .map_err(|e| anyhow::anyhow!(e))?;
-    security::check_endpoints(Side::Station, secure, &eps).map_err(|e| anyhow::anyhow!(e.0))
+    security::check_endpoints(Side::Station, secure, &eps).map_err(|e| anyhow::anyhow!(e.0))?;
+    for w in security::tls_link_warnings(&eps) {
+        tracing::warn!("{w}");
+    }
+    Ok(())
 }
 
 /// Notices when the fleet register changes (an issue or a revocation while the station runs).

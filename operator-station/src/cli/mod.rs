@@ -49,9 +49,9 @@ pub struct ZenohArgs {
     /// Zenoh endpoint to connect to (e.g. a router, or for CLI commands the station).
     #[arg(long)]
     pub connect: Option<String>,
-    /// The fleet's PKI folder (`pki init`): Zenoh over TLS with mutual authentication as the
-    /// station, under the station's access rules; endpoints are then tls/ (default
-    /// tls/127.0.0.1:7447). Without it, endpoints off loopback are refused.
+    /// The fleet's PKI folder (`pki init`): Zenoh over QUIC with mutual TLS authentication as
+    /// the station, under the station's access rules; endpoints are then quic/ (default
+    /// quic/127.0.0.1:7447; tls/ is accepted too). Without it, endpoints off loopback are refused.
     #[arg(long, value_name = "DIR", id = "pki")]
     pub pki: Option<PathBuf>,
 }
@@ -378,7 +378,7 @@ enum Role<'a> {
     Monitor(&'a str),
 }
 
-/// The Zenoh config of `z` for `role`: default endpoints on loopback (`tls/` with `--pki`), TLS
+/// The Zenoh config of `z` for `role`: default endpoints on loopback (`quic/` with `--pki`), TLS
 /// and access rules with `--pki`, and the refusal of plain endpoints off loopback.
 fn zenoh_config(z: &ZenohArgs, role: Role) -> anyhow::Result<zenoh::Config> {
     let secure = z.pki.is_some();
@@ -389,13 +389,15 @@ fn zenoh_config(z: &ZenohArgs, role: Role) -> anyhow::Result<zenoh::Config> {
         if z.zenoh_listen.is_some() {
             bail!(
                 "--monitor takes no --zenoh-listen: a monitor is a Zenoh client of the station or \
-                 router it connects to (--connect tls/STATION:7447)"
+                 router it connects to (--connect {}/STATION:7447)",
+                common::security::SECURE_SCHEME
             );
         }
         if z.connect.is_none() && z.zenoh.is_none() {
             bail!(
-                "--monitor needs --connect tls/HOST:PORT: the station or router (operator-station \
-                 router --pki) it watches the fleet through"
+                "--monitor needs --connect {}/HOST:PORT: the station or router (operator-station \
+                 router --pki) it watches the fleet through",
+                common::security::SECURE_SCHEME
             );
         }
         let connect: Vec<String> = z.connect.iter().cloned().collect();
@@ -405,7 +407,11 @@ fn zenoh_config(z: &ZenohArgs, role: Role) -> anyhow::Result<zenoh::Config> {
         return Ok(c);
     }
     let default_ep = if secure {
-        DEFAULT_LISTEN_ENDPOINT.replacen("tcp/", "tls/", 1)
+        DEFAULT_LISTEN_ENDPOINT.replacen(
+            "tcp/",
+            &format!("{}/", common::security::SECURE_SCHEME),
+            1,
+        )
     } else {
         DEFAULT_LISTEN_ENDPOINT.to_string()
     };
@@ -1277,7 +1283,7 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("pki init") && e.contains("tls/0.0.0.0:7447"),
+            e.contains("pki init") && e.contains("quic/0.0.0.0:7447"),
             "{e}"
         );
         assert!(zenoh_config(&z(None, Some("tcp/192.0.2.1:7447")), Role::Client).is_err());
@@ -1306,7 +1312,7 @@ mod tests {
             pki: Some(pki.to_path_buf()),
         };
         let ok = zenoh_config(
-            &z(None, Some("tls/127.0.0.1:7447"), &dir),
+            &z(None, Some("quic/127.0.0.1:7447"), &dir),
             Role::Monitor("m1"),
         )
         .unwrap();
@@ -1324,7 +1330,7 @@ mod tests {
         // The copied folder works as well as the fleet folder.
         let copied = common::security::FleetDir::new(&dir).monitor_dir("m1");
         assert!(zenoh_config(
-            &z(None, Some("tls/127.0.0.1:7447"), &copied),
+            &z(None, Some("quic/127.0.0.1:7447"), &copied),
             Role::Monitor("m1")
         )
         .is_ok());
@@ -1335,12 +1341,12 @@ mod tests {
         };
         assert!(err(z(None, None, &dir), "m1").contains("--connect"));
         assert!(err(
-            z(Some("tls/127.0.0.1:1"), Some("tls/127.0.0.1:7447"), &dir),
+            z(Some("quic/127.0.0.1:1"), Some("quic/127.0.0.1:7447"), &dir),
             "m1"
         )
         .contains("--zenoh-listen"));
-        assert!(err(z(None, Some("tcp/127.0.0.1:7447"), &dir), "m1").contains("tls/"));
-        assert!(err(z(None, Some("tls/127.0.0.1:7447"), &dir), "m2").contains("add-monitor"));
+        assert!(err(z(None, Some("tcp/127.0.0.1:7447"), &dir), "m1").contains("quic/"));
+        assert!(err(z(None, Some("quic/127.0.0.1:7447"), &dir), "m2").contains("add-monitor"));
     }
 
     #[test]

@@ -46,7 +46,7 @@ pub enum PkiCmd {
     },
     /// Issue a monitor's key and certificate into DIR/monitors/NAME/ (a read-only station: it may
     /// watch the fleet through a station or router, never command; copy that folder to its
-    /// machine and run `serve --pki <folder> --monitor NAME --connect tls/STATION:7447`).
+    /// machine and run `serve --pki <folder> --monitor NAME --connect quic/STATION:7447`).
     AddMonitor {
         /// Monitor name (a-z, 0-9, -).
         #[arg(long)]
@@ -101,8 +101,9 @@ pub fn run(a: PkiArgs) -> anyhow::Result<()> {
             let r = pki::add_monitor(&dir, &name, days)?;
             eprintln!(
                 "copy {} to the monitor's machine and run `operator-station serve --pki <that \
-                 folder> --monitor {name} --connect tls/STATION:7447`; keep no other copy",
-                r.monitor_dir.display()
+                 folder> --monitor {name} --connect {}/STATION:7447`; keep no other copy",
+                r.monitor_dir.display(),
+                common::security::SECURE_SCHEME
             );
             serde_json::to_value(r)?
         }

@@ -88,9 +88,14 @@ pub fn apply_robot_acl(c: &mut zenoh::Config, robot: &RobotId) -> Result<(), Bus
 }
 
 /// Refuses the config when it would listen on or connect to a plain link off loopback (or, when
-/// `secure`, anything but `tls/`), with what to do instead.
+/// `secure`, anything but `quic/` or `tls/`), with what to do instead; warns once per `tls/`
+/// endpoint (see [`security::SECURE_SCHEME`]).
 pub fn check_endpoints(c: &zenoh::Config, secure: bool) -> Result<(), BusError> {
     let eps = security::config_endpoints(|k| c.get_json(k).map_err(|e| e.to_string()))
         .map_err(BusError::Config)?;
-    security::check_endpoints(Side::Robot, secure, &eps).map_err(|e| BusError::Refused(e.0))
+    security::check_endpoints(Side::Robot, secure, &eps).map_err(|e| BusError::Refused(e.0))?;
+    for w in security::tls_link_warnings(&eps) {
+        tracing::warn!("{w}");
+    }
+    Ok(())
 }

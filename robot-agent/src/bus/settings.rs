@@ -32,7 +32,7 @@ pub struct ZenohSettings {
     /// Endpoints to listen on.
     pub listen: Vec<String>,
     /// The robot's certificates: TLS with mutual authentication and the robot's access rules
-    /// (every endpoint must then be `tls/`). None: plain links, loopback only.
+    /// (every endpoint must then be `quic/` or `tls/`). None: plain links, loopback only.
     pub tls: Option<CertFiles>,
 }
 
@@ -56,7 +56,7 @@ impl ZenohSettings {
     /// Builds the Zenoh config: the file (or terranav defaults), multicast scouting off, short
     /// lease so a vanished peer is declared gone within 2 s, fast reconnect, then the overrides
     /// (all from [`common::bus_config`], shared with the station), then TLS when certificates are given. Refuses plain endpoints off loopback (and, with
-    /// certificates, anything but `tls/`).
+    /// certificates, anything but `quic/` or `tls/`).
     pub fn to_config(&self) -> Result<zenoh::Config, BusError> {
         let c = self.build_config()?;
         secure::check_endpoints(&c, self.tls.is_some())?;
@@ -80,7 +80,7 @@ impl ZenohSettings {
             mode,
             listen: &self.listen,
             connect: &self.connect,
-            // A secure robot connects to the station and needs no listener; `--listen tls/...`
+            // A secure robot connects to the station and needs no listener; `--listen quic/...`
             // lets stations link to it directly.
             default_listen: if self.tls.is_some() {
                 DefaultListen::Nowhere
@@ -230,11 +230,11 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("listen on tcp/0.0.0.0:7447"), "{e}");
-        // A secure robot needs tls/ everywhere; its default is to listen nowhere.
+        // A secure robot needs quic/ (or tls/) everywhere; its default is to listen nowhere.
         let files = CertFiles::robot(std::path::Path::new("/nonexistent"));
         let secure = ZenohSettings {
             tls: Some(files.clone()),
-            ..ZenohSettings::connect_to("tls/192.0.2.7:7447")
+            ..ZenohSettings::connect_to("quic/192.0.2.7:7447")
         };
         let c = secure.to_config().unwrap();
         assert_eq!(c.get_json("listen/endpoints").unwrap(), "[]");

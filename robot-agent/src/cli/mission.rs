@@ -32,7 +32,7 @@ pub struct MissionArgs {
     #[arg(long, default_value = "husky-1")]
     pub robot: String,
     /// Zenoh endpoint to connect to (live mode), e.g. tcp/127.0.0.1:7447 (with --pki:
-    /// tls/STATION:7447; default tls/127.0.0.1:7447). Plain endpoints off loopback are refused.
+    /// quic/STATION:7447; default quic/127.0.0.1:7447). Plain endpoints off loopback are refused.
     #[arg(long, value_name = "ENDPOINT")]
     pub connect: Option<String>,
     /// The robot's certificates (live mode): the folder `operator-station pki issue --robot ID`
@@ -207,7 +207,7 @@ pub fn run_live(
 
 /// The live robot's bus: endpoints, certificates; checked here, before the world is built, so a
 /// refused endpoint is reported at once.
-/// `listen`: `sim --listen`, so stations can link to the robot directly (with --pki: tls/...);
+/// `listen`: `sim --listen`, so stations can link to the robot directly (with --pki: quic/...);
 /// default a loopback port, or none with --pki.
 fn bus_config(args: &MissionArgs, listen: &[String], robot: &RobotId) -> anyhow::Result<BusConfig> {
     let mut bus = BusConfig::new(robot.clone());
@@ -222,7 +222,8 @@ fn bus_config(args: &MissionArgs, listen: &[String], robot: &RobotId) -> anyhow:
     if args.zenoh.is_some() || args.connect.is_some() || !listen.is_empty() || tls.is_some() {
         let default_connect = match (&args.zenoh, &tls) {
             (None, Some(_)) => vec![format!(
-                "tls/{}",
+                "{}/{}",
+                common::security::SECURE_SCHEME,
                 crate::bus::DEFAULT_STATION_ENDPOINT
                     .split_once('/')
                     .map_or("127.0.0.1:7447", |(_, a)| a)

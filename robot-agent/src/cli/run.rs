@@ -40,8 +40,8 @@ pub struct RunArgs {
     pub uplink_budget_kbps: Option<f64>,
     /// The robot's certificates: the folder `operator-station pki issue --robot ID` wrote
     /// (PKI/robots/ID/, copied to the robot), or the fleet's PKI folder. The station link is then
-    /// TLS with mutual authentication under the robot's access rules (default
-    /// tls/127.0.0.1:7447). Without it, a station endpoint off loopback is refused.
+    /// QUIC with mutual TLS authentication under the robot's access rules (default
+    /// quic/127.0.0.1:7447; tls/ is accepted too). Without it, a station endpoint off loopback is refused.
     #[arg(long, value_name = "DIR")]
     pub pki: Option<PathBuf>,
     /// LiDAR source (`ros2:TOPIC`, `vlp16-udp:PORT`); overrides `[io] lidar`.
@@ -232,7 +232,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         None => None,
     };
     let connect = if args.connect.is_empty() && args.zenoh.is_none() && tls.is_some() {
-        vec![crate::bus::DEFAULT_STATION_ENDPOINT.replacen("tcp/", "tls/", 1)]
+        vec![crate::bus::DEFAULT_STATION_ENDPOINT.replacen(
+            "tcp/",
+            &format!("{}/", common::security::SECURE_SCHEME),
+            1,
+        )]
     } else {
         args.connect.clone()
     };

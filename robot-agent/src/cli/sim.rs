@@ -60,7 +60,7 @@ pub struct SimArgs {
     pub ros2_domain_id: u32,
     /// Zenoh endpoint to listen on: with `--serve-ros2` the hardware's, e.g. tcp/127.0.0.1:7450
     /// (as a bridge does); live, so stations can link to the robot directly (with --pki:
-    /// tls/ADDR:PORT; default a loopback port, or none with --pki). Off loopback needs --pki.
+    /// quic/ADDR:PORT; default a loopback port, or none with --pki). Off loopback needs --pki.
     #[arg(long, value_name = "ENDPOINT")]
     pub listen: Vec<String>,
     /// `--serve-ros2`: also publish the depth camera (`depth/points`).

@@ -1,7 +1,7 @@
 //! `operator-station bench link`: what secure links cost. Pose latency and tile throughput
-//! through a real [`Station`], once over plain TCP and once over TLS with mutual authentication
+//! through a real [`Station`], over plain TCP, then QUIC and TLS, both with mutual authentication
 //! and both sides' access rules (a fresh fleet PKI in a temporary folder), alternating in the same
-//! run, so the ratio says what TLS adds and not how fast this machine is.
+//! run, so the ratios say what a secure link adds and not how fast this machine is.
 //!
 //! Each simulated robot is its own Zenoh session (its own link, certificate and rules, as on a
 //! real fleet). Latency: `put` of a pose to the station's pose event (the station forwards at most
@@ -24,10 +24,11 @@ use serde_json::json;
 use super::{free_endpoint, rate, robot_like_tile, send_poses, stats, SentPoses};
 use crate::station::{self, Station, StationOptions};
 
-/// Plain TCP or TLS.
+/// Plain TCP, or one of the two links that carry the fleet's mutual TLS authentication.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 enum Link {
     Tcp,
+    Quic,
     Tls,
 }
 
@@ -35,8 +36,13 @@ impl Link {
     fn name(self) -> &'static str {
         match self {
             Link::Tcp => "tcp",
+            Link::Quic => "quic",
             Link::Tls => "tls",
         }
+    }
+
+    fn secure(self) -> bool {
+        self != Link::Tcp
     }
 }
 
@@ -55,7 +61,7 @@ struct Round {
     merged_tiles_per_s: f64,
 }
 
-/// Runs `rounds` rounds of TCP then TLS; `robots` sessions, `samples` timed poses and `tiles` tiles
+/// Runs `rounds` rounds of TCP, QUIC and TLS; `robots` sessions, `samples` timed poses and `tiles` tiles
 /// per round and link.
 pub async fn run(
     robots: usize,
@@ -81,7 +87,7 @@ pub async fn run(
     let mut all: HashMap<Link, Vec<Round>> = HashMap::new();
     let result = async {
         for r in 0..rounds {
-            for link in [Link::Tcp, Link::Tls] {
+            for link in [Link::Tcp, Link::Quic, Link::Tls] {
                 let db = dir.join(format!("{}-{r}.sqlite", link.name()));
                 let round = one_round(link, &pki_dir, &ids, samples, tiles, &db).await?;
                 eprintln!(
@@ -115,29 +121,35 @@ pub async fn run(
         )
     };
     let (lt, rx_t, mg_t) = summary(Link::Tcp);
-    let (ls, rx_s, mg_s) = summary(Link::Tls);
     let ratio = |a: Option<f64>, b: Option<f64>| match (a, b) {
         (Some(x), Some(y)) if y > 0.0 => json!(x / y),
         _ => json!(null),
     };
-    let out = json!({
+    let mut out = json!({
         "robots": robots, "samples_per_round": samples, "tiles_per_round": tiles, "rounds": rounds,
         "tcp": {"latency": lt, "received_tiles_per_s": rx_t, "merged_tiles_per_s": mg_t},
-        "tls": {"latency": ls, "received_tiles_per_s": rx_s, "merged_tiles_per_s": mg_s},
-        "tls_vs_tcp": {
+    });
+    for link in [Link::Quic, Link::Tls] {
+        let (ls, rx_s, mg_s) = summary(link);
+        let vs = json!({
             "latency_median": ratio(ls["median_us"].as_f64(), lt["median_us"].as_f64()),
             "latency_p99": ratio(ls["p99_us"].as_f64(), lt["p99_us"].as_f64()),
             "received_tiles_per_s": ratio(Some(rx_s), Some(rx_t)),
             "merged_tiles_per_s": ratio(Some(mg_s), Some(mg_t)),
-        },
-    });
-    eprintln!(
-        "link: TLS/TCP pose latency median {:.2}x, p99 {:.2}x; tiles received {:.2}x, merged {:.2}x",
-        out["tls_vs_tcp"]["latency_median"].as_f64().unwrap_or(f64::NAN),
-        out["tls_vs_tcp"]["latency_p99"].as_f64().unwrap_or(f64::NAN),
-        out["tls_vs_tcp"]["received_tiles_per_s"].as_f64().unwrap_or(f64::NAN),
-        out["tls_vs_tcp"]["merged_tiles_per_s"].as_f64().unwrap_or(f64::NAN),
-    );
+        });
+        eprintln!(
+            "link: {}/TCP pose latency median {:.2}x, p99 {:.2}x; tiles received {:.2}x, merged \
+             {:.2}x",
+            link.name().to_uppercase(),
+            vs["latency_median"].as_f64().unwrap_or(f64::NAN),
+            vs["latency_p99"].as_f64().unwrap_or(f64::NAN),
+            vs["received_tiles_per_s"].as_f64().unwrap_or(f64::NAN),
+            vs["merged_tiles_per_s"].as_f64().unwrap_or(f64::NAN),
+        );
+        out[link.name()] =
+            json!({"latency": ls, "received_tiles_per_s": rx_s, "merged_tiles_per_s": mg_s});
+        out[format!("{}_vs_tcp", link.name())] = vs;
+    }
     Ok(out)
 }
 
@@ -150,7 +162,7 @@ fn median(v: &[f64]) -> f64 {
 /// The station's config on `link`.
 fn station_config(link: Link, pki: &Path, ep: &str) -> anyhow::Result<zenoh::Config> {
     let mut c = station::zenoh_config(None, None, &[ep.to_string()], &[])?;
-    if link == Link::Tls {
+    if link.secure() {
         crate::security::apply(&mut c, pki, false)?;
     }
     Ok(c)
@@ -159,7 +171,7 @@ fn station_config(link: Link, pki: &Path, ep: &str) -> anyhow::Result<zenoh::Con
 /// A robot's config on `link`: its certificate and its own rules, as `robot-agent --pki`.
 fn robot_config(link: Link, pki: &Path, id: &RobotId, ep: &str) -> anyhow::Result<zenoh::Config> {
     let mut c = station::zenoh_config(None, None, &[], &[ep.to_string()])?;
-    if link == Link::Tls {
+    if link.secure() {
         set(&mut c, "listen/endpoints", "[]")?;
         let files = CertFiles::robot(&FleetDir::new(pki).robot_dir(id));
         for (k, v) in security::tls_settings(&files) {
