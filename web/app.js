@@ -106,6 +106,7 @@ const state = {
   stationDownSince: null, // local ms when the station stopped answering (null: it answers)
   fittedDatum: null,
   health: null,
+  readOnly: false, // a monitor station: command controls off
   mode: null, // "goal" | "zone" | "mission": what a map click does
 };
 
@@ -845,6 +846,10 @@ document.getElementById("log-clear").addEventListener("click", () => (logEl.inne
 // ---------------------------------------------------------------------------------------------
 
 async function command(name, what, body, { quiet = false } = {}) {
+  if (state.readOnly) {
+    logMsg("warn", "monitor (read-only): no commands from here", true);
+    return false;
+  }
   if (!name) {
     logMsg("warn", "select a robot first", true);
     return false;
@@ -1017,7 +1022,7 @@ function updateRecordButton() {
   const rec = isRecording();
   recordBtn.textContent = rec ? "■ Stop recording" : "● Record";
   recordBtn.classList.toggle("recording", rec);
-  document.getElementById("record-name").disabled = rec;
+  document.getElementById("record-name").disabled = rec || state.readOnly;
 }
 document.getElementById("record-form").addEventListener("submit", async (ev) => {
   ev.preventDefault();
@@ -1100,6 +1105,8 @@ function typingInField(ev) {
 window.addEventListener("keydown", (ev) => {
   if (typingInField(ev) || ev.ctrlKey || ev.metaKey || ev.altKey) return;
   const dir = DRIVE_KEYS[ev.code];
+  // A monitor commands nothing: no drive, STOP or goal-mode keys.
+  if (state.readOnly && (dir || ev.code === "Space" || ev.code === "KeyG")) return;
   if (dir) {
     ev.preventDefault();
     if (!held.has(dir)) {
@@ -1458,10 +1465,34 @@ async function refreshRobots() {
   }
 }
 
+/**
+ * A monitor station (`serve --monitor`) sends no commands: its API refuses them
+ * (`monitor_read_only`), so the command controls are disabled and the top bar says so.
+ */
+function applyRole(h) {
+  const readOnly = h.role === "monitor";
+  if (readOnly === state.readOnly) return;
+  state.readOnly = readOnly;
+  document.body.classList.toggle("read-only", readOnly);
+  const badge = document.getElementById("role-badge");
+  badge.textContent = readOnly ? `monitor (read-only)${h.monitor ? ` · ${h.monitor}` : ""}` : "";
+  badge.classList.toggle("hidden", !readOnly);
+  const controls = document.querySelectorAll(
+    "#topbar .stop-row button, #command-panel button, #command-panel input, #command-panel select, " +
+      "#zones-panel button, #zones-panel input, #mission-run-btn, #record-form button, #record-form input",
+  );
+  for (const el of controls) {
+    el.disabled = readOnly;
+    if (readOnly) el.title = "monitor (read-only): commands are sent from the operator station";
+  }
+  if (readOnly) setGoalMode(false);
+}
+
 async function refreshHealth() {
   try {
     const h = await api("GET", "/api/health");
     state.health = h;
+    applyRole(h);
     document.getElementById("footer").textContent =
       `station ${h.version ?? "?"} · ${h.robots_online} online · ${h.tiles} tiles · ${h.decode_errors} decode errors` + (TOKEN ? " · token" : "");
   } catch (e) {

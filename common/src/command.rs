@@ -84,6 +84,8 @@ pub enum RefusalCode {
     BadZone,
     /// A zone set for another session's map frame.
     ZoneFrameMismatch,
+    /// A command sent to a read-only monitor station (`serve --monitor`): it sends no commands.
+    MonitorReadOnly,
 }
 
 impl RefusalCode {
@@ -118,6 +120,7 @@ impl RefusalCode {
             RefusalCode::GoalInKeepOut => "goal_in_keep_out",
             RefusalCode::BadZone => "bad_zone",
             RefusalCode::ZoneFrameMismatch => "zone_frame_mismatch",
+            RefusalCode::MonitorReadOnly => "monitor_read_only",
         }
     }
 }

@@ -22,6 +22,41 @@ pub const STATION_CN: &str = "terranav:station";
 /// Prefix of a robot certificate's common name: `terranav:robot:<id>:<serial>`.
 const ROBOT_CN_PREFIX: &str = "terranav:robot:";
 
+/// Prefix of a monitor certificate's common name: `terranav:monitor:<name>:<serial>`. A monitor is
+/// a read-only station: stations and routers that read the register admit it to subscribe and
+/// query, never to put; robots name no monitor at all, so a monitor linked straight to a robot
+/// gets nothing from it and commands nothing.
+const MONITOR_CN_PREFIX: &str = "terranav:monitor:";
+
+/// Checks a monitor name (`pki add-monitor --name`): the robot id alphabet (`[a-z0-9-]+`, at most
+/// 64 characters), so it is safe in a common name, a folder name and an access-rule id.
+pub fn check_monitor_name(name: &str) -> Result<(), String> {
+    let ok = !name.is_empty()
+        && name.len() <= 64
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'-');
+    if ok {
+        Ok(())
+    } else {
+        Err(format!(
+            "monitor name {name:?}: use 1-64 characters of a-z, 0-9 and -"
+        ))
+    }
+}
+
+/// Common name of the `serial`-th certificate issued to monitor `name`.
+pub fn monitor_cn(name: &str, serial: u32) -> String {
+    format!("{MONITOR_CN_PREFIX}{name}:{serial}")
+}
+
+/// The name and serial of a monitor certificate's common name.
+pub fn parse_monitor_cn(cn: &str) -> Option<(String, u32)> {
+    let (name, serial) = cn.strip_prefix(MONITOR_CN_PREFIX)?.rsplit_once(':')?;
+    check_monitor_name(name).ok()?;
+    Some((name.to_string(), serial.parse().ok()?))
+}
+
 /// Common name of the `serial`-th certificate issued to `robot`. Each issue gets a new serial, so
 /// a revoked (or superseded) certificate never matches the station's rules again.
 pub fn robot_cn(robot: &RobotId, serial: u32) -> String {
@@ -66,6 +101,11 @@ impl FleetDir {
     pub fn robot_dir(&self, robot: &RobotId) -> PathBuf {
         self.root.join("robots").join(robot.as_str())
     }
+    /// The folder of one monitor's files (`monitors/<name>/`: `ca.crt`, `monitor.crt`,
+    /// `monitor.key`; copied to the monitor's machine).
+    pub fn monitor_dir(&self, name: &str) -> PathBuf {
+        self.root.join("monitors").join(name)
+    }
     /// The fleet register: every certificate issued, and which are revoked.
     pub fn register(&self) -> PathBuf {
         self.root.join("fleet.toml")
@@ -91,6 +131,16 @@ impl CertFiles {
             ca: dir.join("ca.crt"),
             cert: dir.join("robot.crt"),
             key: dir.join("robot.key"),
+        }
+    }
+
+    /// The files of a monitor folder as `pki add-monitor` writes it (`monitors/<name>/`):
+    /// `ca.crt`, `monitor.crt`, `monitor.key`.
+    pub fn monitor(dir: &Path) -> Self {
+        Self {
+            ca: dir.join("ca.crt"),
+            cert: dir.join("monitor.crt"),
+            key: dir.join("monitor.key"),
         }
     }
 
@@ -211,11 +261,43 @@ pub struct AdmittedRobot {
     pub cn: String,
 }
 
-/// The access rules of the station's session, default deny: other station sessions (CLI calls
-/// with the station certificate) may do anything under `terranav/`; each admitted robot may
-/// publish, answer queries and declare its liveliness only under its own prefix, and receives
-/// only its own commands. Revoked, superseded and unknown certificates match no subject.
-pub fn station_acl(robots: &[AdmittedRobot]) -> Value {
+/// A monitor the station (or router) admits: its name and the common name of its current
+/// certificate.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct AdmittedMonitor {
+    /// Monitor name.
+    pub name: String,
+    /// Common name of its one valid certificate.
+    pub cn: String,
+}
+
+/// What a monitor may send a station or router: declarations of subscribers and liveliness
+/// subscribers, liveliness queries and queries (reads), never a put, delete, reply or queryable.
+const MONITOR_READS: [&str; 4] = [
+    "declare_subscriber",
+    "declare_liveliness_subscriber",
+    "liveliness_query",
+    "query",
+];
+
+/// What a station or router forwards to a monitor: the samples, replies, queryables and
+/// liveliness tokens of the fleet (everything there is to watch).
+const MONITOR_SEES: [&str; 5] = [
+    "put",
+    "delete",
+    "reply",
+    "declare_queryable",
+    "liveliness_token",
+];
+
+/// The access rules of the station's session (and of `operator-station router`), default deny:
+/// other station sessions (CLI calls with the station certificate) may do anything under
+/// `terranav/`; each admitted robot may publish, answer queries and declare its liveliness only
+/// under its own prefix, and receives only its own commands; each admitted monitor may subscribe
+/// to and query everything under `terranav/` and sees what is published there, but none of its
+/// puts (commands, zones, poses) is taken. Revoked, superseded and unknown certificates match no
+/// subject.
+pub fn station_acl(robots: &[AdmittedRobot], monitors: &[AdmittedMonitor]) -> Value {
     let all = keys::all();
     let mut rules = vec![
         rule(
@@ -288,6 +370,26 @@ pub fn station_acl(robots: &[AdmittedRobot]) -> Value {
         let subject = format!("robot-{id}");
         subjects.push(json!({"id": subject, "cert_common_names": [r.cn]}));
         policies.push(json!({"id": format!("robot-{id}"), "subjects": [subject], "rules": names}));
+    }
+    if !monitors.is_empty() {
+        rules.push(rule(
+            "monitor-reads",
+            "ingress",
+            &MONITOR_READS,
+            std::slice::from_ref(&all),
+        ));
+        rules.push(rule(
+            "monitor-sees",
+            "egress",
+            &MONITOR_SEES,
+            std::slice::from_ref(&all),
+        ));
+        let cns: Vec<&str> = monitors.iter().map(|m| m.cn.as_str()).collect();
+        subjects.push(json!({"id": "monitors", "cert_common_names": cns}));
+        policies.push(json!({
+            "id": "monitors-read-only", "subjects": ["monitors"],
+            "rules": ["monitor-reads", "monitor-sees"],
+        }));
     }
     json!({
         "enabled": true,
@@ -442,6 +544,140 @@ mod tests {
         RobotId::new(s).unwrap()
     }
 
+    fn monitor(name: &str, serial: u32) -> AdmittedMonitor {
+        AdmittedMonitor {
+            name: name.into(),
+            cn: monitor_cn(name, serial),
+        }
+    }
+
+    /// The rules of `acl` that the subject with common name `cn` gets: (flow, message, key) rows.
+    fn grants(acl: &Value, cn: &str) -> Vec<(String, String, String)> {
+        let subjects: Vec<&str> = acl["subjects"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|s| {
+                s["cert_common_names"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .any(|c| c == cn)
+            })
+            .map(|s| s["id"].as_str().unwrap())
+            .collect();
+        let mut out = Vec::new();
+        for p in acl["policies"].as_array().unwrap() {
+            let applies = p["subjects"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|s| subjects.contains(&s.as_str().unwrap()));
+            if !applies {
+                continue;
+            }
+            for rid in p["rules"].as_array().unwrap() {
+                let r = acl["rules"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .find(|r| r["id"] == *rid)
+                    .unwrap();
+                assert_eq!(r["permission"], "allow");
+                for f in r["flows"].as_array().unwrap() {
+                    for m in r["messages"].as_array().unwrap() {
+                        for k in r["key_exprs"].as_array().unwrap() {
+                            out.push((
+                                f.as_str().unwrap().to_string(),
+                                m.as_str().unwrap().to_string(),
+                                k.as_str().unwrap().to_string(),
+                            ));
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn monitor_names_and_common_names() {
+        assert_eq!(monitor_cn("ops-laptop", 2), "terranav:monitor:ops-laptop:2");
+        assert_eq!(
+            parse_monitor_cn("terranav:monitor:ops-laptop:2"),
+            Some(("ops-laptop".into(), 2))
+        );
+        assert_eq!(parse_monitor_cn(STATION_CN), None);
+        assert_eq!(parse_monitor_cn(&robot_cn(&rid("m1"), 1)), None);
+        assert!(parse_robot_cn(&monitor_cn("m1", 1)).is_none());
+        for bad in ["", "Ops", "a b", "a:b", "../x", &"a".repeat(65)] {
+            assert!(check_monitor_name(bad).is_err(), "{bad}");
+        }
+        assert!(check_monitor_name("ops-2").is_ok());
+    }
+
+    #[test]
+    fn a_monitor_reads_everything_and_puts_nothing_at_a_station_or_router() {
+        let robots = [AdmittedRobot {
+            robot: rid("r1"),
+            cn: robot_cn(&rid("r1"), 1),
+        }];
+        let acl = station_acl(&robots, &[monitor("m1", 1), monitor("m2", 3)]);
+        for cn in [monitor_cn("m1", 1), monitor_cn("m2", 3)] {
+            let g = grants(&acl, &cn);
+            let has = |f: &str, m: &str| {
+                g.iter()
+                    .any(|(gf, gm, k)| gf == f && gm == m && k == "terranav/**")
+            };
+            // Reads: subscribe, query, liveliness; and it is sent what is published.
+            for m in MONITOR_READS {
+                assert!(has("ingress", m), "{cn} {m}");
+            }
+            for m in ["put", "reply", "liveliness_token"] {
+                assert!(has("egress", m), "{cn} {m}");
+            }
+            // Never takes a put, delete, reply, queryable or liveliness token from it: no command,
+            // no zone set, no forged pose, no answer to a robot's zone query.
+            for m in [
+                "put",
+                "delete",
+                "reply",
+                "declare_queryable",
+                "liveliness_token",
+            ] {
+                assert!(
+                    !g.iter().any(|(f, gm, _)| f == "ingress" && gm == m),
+                    "{cn} may send {m}"
+                );
+            }
+        }
+        // A superseded or revoked monitor certificate (not in the list) gets nothing.
+        assert!(grants(&acl, &monitor_cn("m1", 2)).is_empty());
+        assert!(grants(&acl, &monitor_cn("m3", 1)).is_empty());
+        // The station certificate keeps every right, a robot only its own prefix.
+        assert!(grants(&acl, STATION_CN)
+            .iter()
+            .any(|(f, m, _)| f == "ingress" && m == "put"));
+        let r1 = grants(&acl, &robot_cn(&rid("r1"), 1));
+        assert!(r1
+            .iter()
+            .filter(|(f, m, _)| f == "ingress" && m == "put")
+            .all(|(_, _, k)| k == "terranav/r1/**"));
+        // No monitor: no monitor subject at all (the rules are as before).
+        let plain = station_acl(&robots, &[]);
+        assert!(!plain.to_string().contains("monitor"));
+    }
+
+    #[test]
+    fn a_robot_names_no_monitor_so_a_monitor_gets_nothing_from_it() {
+        let acl = robot_acl(&rid("r1"));
+        assert!(grants(&acl, &monitor_cn("m1", 1)).is_empty());
+        let station = grants(&acl, STATION_CN);
+        assert!(station
+            .iter()
+            .any(|(f, m, k)| f == "ingress" && m == "put" && k == "terranav/r1/cmd/**"));
+    }
+
     #[test]
     fn robot_common_names_round_trip_and_are_not_dns_names() {
         let cn = robot_cn(&rid("husky-1"), 3);
@@ -539,16 +775,19 @@ mod tests {
     fn acls_name_every_rule_they_use_and_deny_by_default() {
         let acls = [
             robot_acl(&rid("r1")),
-            station_acl(&[
-                AdmittedRobot {
-                    robot: rid("r1"),
-                    cn: robot_cn(&rid("r1"), 1),
-                },
-                AdmittedRobot {
-                    robot: rid("r2"),
-                    cn: robot_cn(&rid("r2"), 4),
-                },
-            ]),
+            station_acl(
+                &[
+                    AdmittedRobot {
+                        robot: rid("r1"),
+                        cn: robot_cn(&rid("r1"), 1),
+                    },
+                    AdmittedRobot {
+                        robot: rid("r2"),
+                        cn: robot_cn(&rid("r2"), 4),
+                    },
+                ],
+                &[monitor("m1", 2)],
+            ),
         ];
         for acl in acls {
             assert_eq!(acl["default_permission"], "deny");

@@ -6,6 +6,7 @@ mod alerts;
 mod basemap;
 mod missions;
 mod pyramid;
+mod role;
 pub mod tls;
 mod zones;
 
@@ -35,6 +36,7 @@ use tower_http::services::ServeDir;
 
 use crate::station::{now_unix_ms, route_row, Inner, VERSION};
 use crate::store::{self, StoreOp};
+pub use role::Role;
 
 /// Shared state of the HTTP server.
 #[derive(Clone)]
@@ -45,6 +47,8 @@ pub struct AppState {
     pub token: Option<String>,
     /// The operator's background map, if given.
     pub basemap: Option<Arc<crate::basemap::Basemap>>,
+    /// A station, or a read-only monitor (whose command routes are refused).
+    pub role: Role,
 }
 
 /// An API error: status plus `{"error": ...}`, and the refusal's stable code when there is one
@@ -157,6 +161,10 @@ pub fn router(state: AppState, web: Option<PathBuf>) -> Router {
         .route("/api/basemap/{z}/{x}/{y}", get(basemap::tile))
         .route("/api/ws", get(ws))
         .fallback(|| async { not_found("no such API endpoint") })
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            role::refuse_commands,
+        ))
         .layer(axum::middleware::from_fn(json_errors))
         .layer(axum::middleware::from_fn_with_state(state.clone(), auth))
         .with_state(state);
@@ -269,10 +277,12 @@ async fn health(State(st): State<AppState>) -> Json<Value> {
         .values()
         .map(|d| d.tiles.len())
         .sum();
-    Json(
-        json!({"ok": true, "version": VERSION, "robots_online": online, "tiles": tiles,
-                "decode_errors": st.inner.decode_errors.load(Ordering::Relaxed)}),
-    )
+    let mut h = json!({"ok": true, "version": VERSION, "robots_online": online, "tiles": tiles,
+                       "decode_errors": st.inner.decode_errors.load(Ordering::Relaxed)});
+    if let (Some(h), Value::Object(role)) = (h.as_object_mut(), st.role.health()) {
+        h.extend(role);
+    }
+    Json(h)
 }
 
 /// The robots list as in API.md (also used by the CLI).

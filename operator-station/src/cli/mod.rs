@@ -52,7 +52,7 @@ pub struct ZenohArgs {
     /// The fleet's PKI folder (`pki init`): Zenoh over QUIC with mutual TLS authentication as
     /// the station, under the station's access rules; endpoints are then quic/ (default
     /// quic/127.0.0.1:7447; tls/ is accepted too). Without it, endpoints off loopback are refused.
-    #[arg(long, value_name = "DIR")]
+    #[arg(long, value_name = "DIR", id = "pki")]
     pub pki: Option<PathBuf>,
 }
 
@@ -109,6 +109,13 @@ pub struct ServeArgs {
     /// Directory of the web UI (default: found next to the binary or in the working directory).
     #[arg(long)]
     pub web: Option<PathBuf>,
+    /// Run as the read-only monitor NAME (`pki add-monitor --name NAME`): with --pki holding its
+    /// certificate (its copied folder, or the fleet folder) it is a Zenoh client of the station or
+    /// router given by --connect, watches everything and commands nothing (its API refuses
+    /// command routes with code `monitor_read_only`; the station's and router's rules drop its
+    /// puts; robots admit it to nothing).
+    #[arg(long, value_name = "NAME", requires = "pki")]
+    pub monitor: Option<String>,
     /// Operator options shared with `demo`.
     #[command(flatten)]
     pub ops: OpsArgs,
@@ -366,17 +373,43 @@ pub fn http_tls(
     }
 }
 
-/// What a Zenoh session of this process does: the station listens, a CLI call connects.
+/// What a Zenoh session of this process does: the station listens, a CLI call connects, a
+/// monitor (named) is a client of a station or router under its own certificate.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Role {
+enum Role<'a> {
     Station,
     Client,
+    Monitor(&'a str),
 }
 
 /// The Zenoh config of `z` for `role`: default endpoints on loopback (`quic/` with `--pki`), TLS
 /// and access rules with `--pki`, and the refusal of plain endpoints off loopback.
 fn zenoh_config(z: &ZenohArgs, role: Role) -> anyhow::Result<zenoh::Config> {
     let secure = z.pki.is_some();
+    if let Role::Monitor(name) = role {
+        let Some(dir) = &z.pki else {
+            bail!("--monitor needs --pki (the monitor's certificate folder)");
+        };
+        if z.zenoh_listen.is_some() {
+            bail!(
+                "--monitor takes no --zenoh-listen: a monitor is a Zenoh client of the station or \
+                 router it connects to (--connect {}/STATION:7447)",
+                common::security::SECURE_SCHEME
+            );
+        }
+        if z.connect.is_none() && z.zenoh.is_none() {
+            bail!(
+                "--monitor needs --connect {}/HOST:PORT: the station or router (operator-station \
+                 router --pki) it watches the fleet through",
+                common::security::SECURE_SCHEME
+            );
+        }
+        let connect: Vec<String> = z.connect.iter().cloned().collect();
+        let mut c = station::zenoh_config(z.zenoh.as_deref(), None, &[], &connect)?;
+        security::apply_monitor(&mut c, dir, name)?;
+        security::check_endpoints(&c, true)?;
+        return Ok(c);
+    }
     let default_ep = if secure {
         DEFAULT_LISTEN_ENDPOINT.replacen(
             "tcp/",
@@ -414,22 +447,45 @@ fn zenoh_config(z: &ZenohArgs, role: Role) -> anyhow::Result<zenoh::Config> {
 /// when it changed (a robot issued or revoked), re-opens its Zenoh session with the new rules.
 pub async fn serve(a: ServeArgs) -> anyhow::Result<()> {
     let addr = http_addr(a.listen, a.port, a.token.as_deref())?;
-    let tls = http_tls(
-        addr,
-        a.tls_cert.as_deref(),
-        a.tls_key.as_deref(),
-        a.z.pki.as_deref(),
-    )?;
-    let zc = zenoh_config(&a.z, Role::Station)?;
+    let role = match a.monitor.as_deref() {
+        Some(name) => Role::Monitor(name),
+        None => Role::Station,
+    };
+    // A monitor's folder holds no station certificate for HTTPS: off loopback it takes
+    // --tls-cert/--tls-key.
+    let http_pki = match role {
+        Role::Monitor(_) => None,
+        _ => a.z.pki.as_deref(),
+    };
+    let tls = http_tls(addr, a.tls_cert.as_deref(), a.tls_key.as_deref(), http_pki)?;
+    let zc = zenoh_config(&a.z, role)?;
     let web = a.web.clone().or_else(api::find_web_dir);
-    let mut running =
-        start_station(zc, &a.db, addr, a.token.clone(), web, tls.as_ref(), &a.ops).await?;
+    let mut running = start_station(
+        zc,
+        &a.db,
+        addr,
+        a.token.clone(),
+        web,
+        tls.as_ref(),
+        &a.ops,
+        a.monitor.clone(),
+    )
+    .await?;
     println!(
-        "operator station: {}://{addr}/  (database {})",
+        "operator station{}: {}://{addr}/  (database {})",
+        a.monitor
+            .as_deref()
+            .map(|m| format!(" (monitor {m}, read-only)"))
+            .unwrap_or_default(),
         if tls.is_some() { "https" } else { "http" },
         a.db.display()
     );
-    let mut watch = a.z.pki.as_deref().map(RegisterWatch::new);
+    // A monitor's own access is decided by the station or router it connects to (which re-reads
+    // the register); it has no rules of its own to re-read.
+    let mut watch = match role {
+        Role::Monitor(_) => None,
+        _ => a.z.pki.as_deref().map(RegisterWatch::new),
+    };
     run_until_stopped(&mut running, &a.z, &mut watch, || false).await;
     running.stop().await;
     Ok(())
@@ -505,7 +561,9 @@ impl Running {
     }
 }
 
-/// Starts the station and its HTTP server (HTTPS with `tls`: certificate and key PEM files).
+/// Starts the station and its HTTP server (HTTPS with `tls`: certificate and key PEM files);
+/// `monitor` names the read-only monitor this station runs as, if it is one.
+#[allow(clippy::too_many_arguments)] // one call per way of starting (serve, demo), each a flag
 pub async fn start_station(
     zc: zenoh::Config,
     db: &Path,
@@ -514,6 +572,7 @@ pub async fn start_station(
     web: Option<PathBuf>,
     tls: Option<&(PathBuf, PathBuf)>,
     ops: &OpsArgs,
+    monitor: Option<String>,
 ) -> anyhow::Result<Running> {
     let alerts = ops.alerts()?;
     let basemap = ops.basemap()?;
@@ -548,6 +607,7 @@ pub async fn start_station(
             inner: station.inner.clone(),
             token,
             basemap,
+            role: api::Role::new(monitor),
         },
         web,
     );
@@ -785,6 +845,7 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
         web.clone(),
         None,
         &a.ops,
+        None,
     )
     .await;
     let mut running = match started {
@@ -795,7 +856,7 @@ pub async fn demo(a: DemoArgs) -> anyhow::Result<()> {
             zport = demo_zenoh_port(Some(0))?;
             z = z_for(zport);
             let zc = zenoh_config(&z, Role::Station)?;
-            start_station(zc, &db, addr, None, web, None, &a.ops).await?
+            start_station(zc, &db, addr, None, web, None, &a.ops, None).await?
         }
         Err(e) => return Err(e),
     };
@@ -1241,6 +1302,56 @@ mod tests {
             ..z(None, None)
         };
         assert!(zenoh_config(&file, Role::Station).is_ok());
+    }
+
+    #[test]
+    fn a_monitor_is_a_tls_client_with_its_own_certificate() {
+        let d = tempfile::tempdir().unwrap();
+        let dir = d.path().join("pki");
+        crate::pki::init(&dir, &[]).unwrap();
+        crate::pki::add_monitor(&dir, "m1", 30).unwrap();
+        let z = |listen: Option<&str>, connect: Option<&str>, pki: &Path| ZenohArgs {
+            zenoh: None,
+            zenoh_listen: listen.map(String::from),
+            connect: connect.map(String::from),
+            pki: Some(pki.to_path_buf()),
+        };
+        let ok = zenoh_config(
+            &z(None, Some("quic/127.0.0.1:7447"), &dir),
+            Role::Monitor("m1"),
+        )
+        .unwrap();
+        assert_eq!(ok.get_json("mode").unwrap(), "\"client\"");
+        assert_eq!(ok.get_json("listen/endpoints").unwrap(), "[]");
+        let cert = ok
+            .get_json("transport/link/tls/connect_certificate")
+            .unwrap();
+        assert!(cert.contains("monitors/m1/monitor.crt"), "{cert}");
+        // It sets no rules of its own (the station's and router's decide).
+        assert!(!ok
+            .get_json("access_control/enabled")
+            .unwrap()
+            .contains("true"));
+        // The copied folder works as well as the fleet folder.
+        let copied = common::security::FleetDir::new(&dir).monitor_dir("m1");
+        assert!(zenoh_config(
+            &z(None, Some("quic/127.0.0.1:7447"), &copied),
+            Role::Monitor("m1")
+        )
+        .is_ok());
+        let err = |z: ZenohArgs, name| {
+            zenoh_config(&z, Role::Monitor(name))
+                .unwrap_err()
+                .to_string()
+        };
+        assert!(err(z(None, None, &dir), "m1").contains("--connect"));
+        assert!(err(
+            z(Some("quic/127.0.0.1:1"), Some("quic/127.0.0.1:7447"), &dir),
+            "m1"
+        )
+        .contains("--zenoh-listen"));
+        assert!(err(z(None, Some("tcp/127.0.0.1:7447"), &dir), "m1").contains("quic/"));
+        assert!(err(z(None, Some("quic/127.0.0.1:7447"), &dir), "m2").contains("add-monitor"));
     }
 
     #[test]

@@ -1,4 +1,4 @@
-//! `operator-station pki init | issue | revoke`: the fleet's certificates ([`crate::pki`]).
+//! `operator-station pki init | issue | revoke | add-monitor | revoke-monitor`: the fleet's certificates ([`crate::pki`]).
 
 use std::path::PathBuf;
 
@@ -44,6 +44,29 @@ pub enum PkiCmd {
         #[arg(long, default_value_t = pki::ROBOT_DAYS)]
         days: i64,
     },
+    /// Issue a monitor's key and certificate into DIR/monitors/NAME/ (a read-only station: it may
+    /// watch the fleet through a station or router, never command; copy that folder to its
+    /// machine and run `serve --pki <folder> --monitor NAME --connect quic/STATION:7447`).
+    AddMonitor {
+        /// Monitor name (a-z, 0-9, -).
+        #[arg(long)]
+        name: String,
+        /// The PKI folder.
+        #[arg(long)]
+        dir: PathBuf,
+        /// Validity, days.
+        #[arg(long, default_value_t = pki::ROBOT_DAYS)]
+        days: i64,
+    },
+    /// Revoke every certificate of a monitor: running stations and routers refuse it at once.
+    RevokeMonitor {
+        /// Monitor name.
+        #[arg(long)]
+        name: String,
+        /// The PKI folder.
+        #[arg(long)]
+        dir: PathBuf,
+    },
     /// Revoke every certificate of a robot (a stolen or retired robot): a running station drops
     /// it at once and refuses it from then on.
     Revoke {
@@ -73,6 +96,19 @@ pub fn run(a: PkiArgs) -> anyhow::Result<()> {
                 r.robot_dir.display()
             );
             serde_json::to_value(r)?
+        }
+        PkiCmd::AddMonitor { name, dir, days } => {
+            let r = pki::add_monitor(&dir, &name, days)?;
+            eprintln!(
+                "copy {} to the monitor's machine and run `operator-station serve --pki <that \
+                 folder> --monitor {name} --connect {}/STATION:7447`; keep no other copy",
+                r.monitor_dir.display(),
+                common::security::SECURE_SCHEME
+            );
+            serde_json::to_value(r)?
+        }
+        PkiCmd::RevokeMonitor { name, dir } => {
+            serde_json::to_value(pki::revoke_monitor(&dir, &name)?)?
         }
         PkiCmd::Revoke { robot, dir } => {
             let id = RobotId::new(robot)?;

@@ -323,6 +323,113 @@ pub fn issue(
     })
 }
 
+/// What `pki add-monitor` made.
+#[derive(Debug, Serialize)]
+pub struct MonitorReport {
+    /// Monitor name.
+    pub monitor: String,
+    /// Issue number.
+    pub serial: u32,
+    /// Common name.
+    pub cn: String,
+    /// The folder to copy to the monitor's machine.
+    pub monitor_dir: PathBuf,
+    /// End of validity, Unix seconds.
+    pub not_after_unix_s: i64,
+    /// The monitor's previous certificate, now superseded (refused everywhere), if any.
+    pub superseded_serial: Option<u32>,
+}
+
+/// `pki add-monitor`: a certificate for a read-only station `name` (valid `days`), in
+/// `monitors/<name>/` with the CA certificate. Stations and routers that read the register admit
+/// it to watch, never to command; robots admit it to nothing. Issuing again supersedes the
+/// previous certificate.
+pub fn add_monitor(dir: &Path, name: &str, days: i64) -> anyhow::Result<MonitorReport> {
+    security::check_monitor_name(name).map_err(|e| anyhow::anyhow!(e))?;
+    if !(1..=3650).contains(&days) {
+        bail!("--days must be 1-3650");
+    }
+    let fleet = require_fleet(dir)?;
+    let issuer = load_issuer(&fleet)?;
+    let mut reg = read_register(&fleet)?;
+    let superseded_serial = reg
+        .newest_monitor(name)
+        .filter(|i| i.revoked_unix_s.is_none())
+        .map(|i| i.serial);
+    let serial = reg.next_monitor_serial(name);
+    let cn = security::monitor_cn(name, serial);
+    // A monitor only connects (it is a Zenoh client of a station or router): loopback names are
+    // enough for its certificate.
+    let params = leaf_params(&cn, names(&[]), days)?;
+    let not_after_unix_s = params.not_after.unix_timestamp();
+    let key = KeyPair::generate().context("generate the monitor key")?;
+    let cert = params
+        .signed_by(&key, &issuer)
+        .context("sign the monitor certificate")?;
+    let mdir = fleet.monitor_dir(name);
+    private_dir(&dir.join("monitors"))?;
+    private_dir(&mdir)?;
+    let files = security::CertFiles::monitor(&mdir);
+    let ca_pem = std::fs::read_to_string(fleet.ca_cert())?;
+    write_private(&files.key, &key.serialize_pem())?;
+    write_public(&files.cert, &cert.pem())?;
+    write_public(&files.ca, &ca_pem)?;
+    reg.monitors.push(register::IssuedMonitor {
+        name: name.to_string(),
+        serial,
+        cn: cn.clone(),
+        issued_unix_s: now().unix_timestamp(),
+        not_after_unix_s,
+        revoked_unix_s: None,
+    });
+    write_register(&fleet, &reg)?;
+    Ok(MonitorReport {
+        monitor: name.to_string(),
+        serial,
+        cn,
+        monitor_dir: mdir,
+        not_after_unix_s,
+        superseded_serial,
+    })
+}
+
+/// What `pki revoke-monitor` did.
+#[derive(Debug, Serialize)]
+pub struct RevokeMonitorReport {
+    /// Monitor name.
+    pub monitor: String,
+    /// Certificates newly marked revoked.
+    pub revoked: usize,
+    /// Whether the station's copy of the monitor's files was deleted.
+    pub deleted_monitor_dir: bool,
+}
+
+/// `pki revoke-monitor`: marks every certificate of monitor `name` revoked (running stations and
+/// routers re-read the register and refuse it) and deletes the station's copy of its files.
+pub fn revoke_monitor(dir: &Path, name: &str) -> anyhow::Result<RevokeMonitorReport> {
+    security::check_monitor_name(name).map_err(|e| anyhow::anyhow!(e))?;
+    let fleet = require_fleet(dir)?;
+    let mut reg = read_register(&fleet)?;
+    if reg.newest_monitor(name).is_none() {
+        bail!(
+            "no certificate was ever issued to monitor {name} in {}",
+            dir.display()
+        );
+    }
+    let revoked = reg.revoke_monitor(name, now().unix_timestamp());
+    write_register(&fleet, &reg)?;
+    let mdir = fleet.monitor_dir(name);
+    let deleted_monitor_dir = mdir.is_dir();
+    if deleted_monitor_dir {
+        std::fs::remove_dir_all(&mdir).with_context(|| format!("delete {}", mdir.display()))?;
+    }
+    Ok(RevokeMonitorReport {
+        monitor: name.to_string(),
+        revoked,
+        deleted_monitor_dir,
+    })
+}
+
 /// `pki revoke`: marks every certificate of `robot` revoked in the register (a running station
 /// re-reads it and drops the robot) and deletes the station's copy of the robot's files.
 pub fn revoke(dir: &Path, robot: &RobotId) -> anyhow::Result<RevokeReport> {
@@ -426,5 +533,38 @@ mod tests {
         // No key ever lands in the register.
         let text = std::fs::read_to_string(fleet.register()).unwrap();
         assert!(!text.contains("PRIVATE KEY"));
+    }
+
+    #[test]
+    fn add_and_revoke_a_monitor() {
+        let d = tempfile::tempdir().unwrap();
+        let dir = d.path().join("pki");
+        init(&dir, &[]).unwrap();
+        let fleet = FleetDir::new(&dir);
+        assert!(add_monitor(&dir, "Bad Name", 30).is_err());
+        let a = add_monitor(&dir, "ops", 30).unwrap();
+        assert_eq!(
+            (a.serial, a.cn.as_str(), a.superseded_serial),
+            (1, "terranav:monitor:ops:1", None)
+        );
+        let files = security::CertFiles::monitor(&a.monitor_dir);
+        assert_eq!(mode(&files.key), 0o600);
+        assert_eq!(mode(&a.monitor_dir), 0o700);
+        assert!(files.all().iter().all(|f| f.is_file()));
+        let b = add_monitor(&dir, "ops", 30).unwrap();
+        assert_eq!((b.serial, b.superseded_serial), (2, Some(1)));
+        let now_s = now().unix_timestamp();
+        let reg = read_register(&fleet).unwrap();
+        assert_eq!(reg.admitted_monitors(now_s).len(), 1);
+        assert_eq!(reg.admitted_monitors(now_s)[0].cn, b.cn);
+        assert!(reg.admitted(now_s).is_empty(), "a monitor is no robot");
+        let rev = revoke_monitor(&dir, "ops").unwrap();
+        assert_eq!(rev.revoked, 2);
+        assert!(rev.deleted_monitor_dir && !b.monitor_dir.exists());
+        assert!(read_register(&fleet)
+            .unwrap()
+            .admitted_monitors(now_s)
+            .is_empty());
+        assert!(revoke_monitor(&dir, "nobody").is_err());
     }
 }
