@@ -64,6 +64,7 @@ fn synthetic_tile(tx: i32, ty: i32) -> Tile {
                 height_cm: 0,
                 hits: 3,
                 stamp_s: 1000,
+                rev: 0,
             };
         }
     }

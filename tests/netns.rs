@@ -244,16 +244,21 @@ fn two_stations_at_two_sites_see_the_same_merged_map() {
     let mut site = Site::new(3, 2, &["r1"], dir.path(), true);
     let _router = site.start_router();
     let _router_b = site.start_router_b();
-    // Both stations watch from the start, so both see the same stream of tiles. (A station that
-    // joins late gets only the robot's current tiles, which is all the robot still has; see
-    // README "Fleets across networks" for how far that is from the others' merged map.)
+    // The first station watches from the start; the second joins 20 s into the drive, so it
+    // gets only the robot's current tiles (the resync) and what follows, not the versions
+    // before. The merge's order per cell makes that the same map (docs/algorithms.md 8.3).
     let first = site.start_station(0);
-    let second = site.start_station(1);
     let truth = dir.path().join("r1.truth");
     let mut r1 = site.start_robot("r1", &field_scenario(), "0,0,0", &truth);
     wait_up(&first, &mut r1, "r1");
-    wait_up(&second, &mut r1, "r1");
     send_goal(&first, "r1", 8.0, 0.0);
+    let t_goal = Instant::now();
+    while t_goal.elapsed() < Duration::from_secs(20) {
+        r1.assert_running();
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    let second = site.start_station(1);
+    wait_up(&second, &mut r1, "r1");
     let last = wait_reached(&first, &mut r1, "r1");
     let datum = single_datum(&first);
     // Freeze the robot so the map stops changing, then compare once both have everything.

@@ -1105,3 +1105,91 @@ fn an_uplink_budget_holds_while_driving_and_every_tile_arrives_afterwards() {
         line.split("uplink:").nth(1).unwrap_or("(no summary)")
     );
 }
+
+/// Known cells that two maps hold differently (or only one holds).
+fn differing_cells(
+    a: &BTreeMap<(i64, i64), common::grid::Cell>,
+    b: &BTreeMap<(i64, i64), common::grid::Cell>,
+) -> usize {
+    a.iter().filter(|(k, c)| b.get(k) != Some(c)).count()
+        + b.keys().filter(|k| !a.contains_key(k)).count()
+}
+
+#[test]
+fn a_station_that_joins_late_ends_with_the_same_map_as_one_that_watched() {
+    let t_test = Instant::now();
+    let dir = tempfile::tempdir().unwrap();
+    let (pa, pb) = (Ports::new(), Ports::new());
+    let (db_a, db_b) = (dir.path().join("a.db"), dir.path().join("b.db"));
+    let first = Station::start(pa, &db_a);
+    // The robot connects to the first station and listens on its own port, which the second
+    // station links to when it comes.
+    let robot_endpoint = format!("tcp/127.0.0.1:{}", support::free_port());
+    let mut r1 = Robot::start_with(
+        "r1",
+        &field_scenario(),
+        &pa.endpoint(),
+        "0,0,0",
+        1,
+        dir.path(),
+        &["--listen".into(), robot_endpoint.clone()],
+    );
+    wait_robot_up(&first, &mut r1);
+    send_goal(&first, "r1", 8.0, 0.0);
+    // 20 s into the drive (many tile versions, several inside one stamp step, already
+    // published and merged by the first station), the second station starts.
+    let t_goal = Instant::now();
+    while t_goal.elapsed() < Duration::from_secs(20) {
+        r1.assert_running();
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    let datum = single_datum(pa.http);
+    let versions_before: u64 = station_tile_index(pa.http, &datum).values().sum();
+    let second = Station::start_with(
+        pb,
+        &db_b,
+        &[
+            "--zenoh-listen".into(),
+            pb.endpoint(),
+            "--connect".into(),
+            robot_endpoint,
+        ],
+    );
+    wait_robot_up(&second, &mut r1);
+    wait_reached(&first, &mut r1, DRIVE);
+    // Freeze the robot so its map stops changing, then compare once both have everything.
+    std::thread::sleep(Duration::from_secs(2));
+    r1.signal("-STOP");
+    let mut diff = usize::MAX;
+    let ok = wait_for(Duration::from_secs(30), || {
+        let a = cells_by_coordinate(&stored_tiles(&db_a, &datum));
+        let b = cells_by_coordinate(&stored_tiles(&db_b, &datum));
+        diff = differing_cells(&a, &b);
+        !a.is_empty() && diff == 0
+    });
+    let a = cells_by_coordinate(&stored_tiles(&db_a, &datum));
+    let b = cells_by_coordinate(&stored_tiles(&db_b, &datum));
+    let revised = a.values().filter(|c| c.rev > 0).count();
+    let same_stamp_other = a
+        .iter()
+        .filter(|(k, c)| b.get(k).is_some_and(|d| d != *c && d.stamp_s == c.stamp_s))
+        .count();
+    println!(
+        "late station: joined after {versions_before} merged tile versions at the first; \
+         {} known cells at the first, {} at the second, {diff} differ ({same_stamp_other} with \
+         the same stamp); {revised} cells hold a revision > 0; test {:.0} s",
+        a.len(),
+        b.len(),
+        t_test.elapsed().as_secs_f64()
+    );
+    r1.signal("-CONT");
+    assert!(
+        versions_before >= 10,
+        "the first station merged only {versions_before} tile versions before the second came"
+    );
+    assert!(ok, "the stations' merged maps differ in {diff} cells");
+    assert!(
+        revised > 0,
+        "no cell changed inside one stamp step: the test did not exercise the order's tie-break"
+    );
+}

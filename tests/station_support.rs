@@ -507,6 +507,7 @@ pub fn tile(
                     height_cm: (r as i16) * 2,
                     hits: 3,
                     stamp_s,
+                    rev: 0,
                 };
             }
         }

@@ -1,13 +1,16 @@
 //! Any bytes into the tile decoder: no panic, and a tile that decodes re-encodes to bytes that
 //! decode and re-encode identically (compared as bytes, so NaN fields cannot fool it).
 //!
-//! Random bytes rarely pass the v3 checksum or the v2 zstd frame check, so each input is also
-//! tried behind a valid checksum (v3: it reaches the header, the range decoder and the value
-//! checks) and as a v2 *decompressed* payload (framed and zstd-compressed here, it reaches the
+//! Random bytes rarely pass the v4/v3 checksum or the v2 zstd frame check, so each input is also
+//! tried behind a valid checksum (v4 and v3: it reaches the header, the range decoder and the
+//! value checks) and as a v2 *decompressed* payload (framed and zstd-compressed here, it reaches the
 //! postcard layout and the validation behind it).
 #![no_main]
 
-use common::grid::{decode_tile, encode_tile, TILE_CODEC_VERSION, TILE_CODEC_VERSION_V2, TILE_MAGIC};
+use common::grid::{
+    decode_tile, encode_tile, TILE_CODEC_VERSION, TILE_CODEC_VERSION_V2, TILE_CODEC_VERSION_V3,
+    TILE_MAGIC,
+};
 use libfuzzer_sys::fuzz_target;
 
 fn check(bytes: &[u8]) {
@@ -22,11 +25,13 @@ fn check(bytes: &[u8]) {
 
 fuzz_target!(|data: &[u8]| {
     check(data);
-    let mut v3 = vec![TILE_MAGIC, TILE_CODEC_VERSION];
-    v3.extend(data);
-    let crc = crc32fast::hash(&v3);
-    v3.extend(crc.to_le_bytes());
-    check(&v3);
+    for version in [TILE_CODEC_VERSION, TILE_CODEC_VERSION_V3] {
+        let mut framed = vec![TILE_MAGIC, version];
+        framed.extend(data);
+        let crc = crc32fast::hash(&framed);
+        framed.extend(crc.to_le_bytes());
+        check(&framed);
+    }
     if let Ok(compressed) = zstd::bulk::compress(data, 1) {
         let mut framed = vec![TILE_MAGIC, TILE_CODEC_VERSION_V2];
         framed.extend(compressed);

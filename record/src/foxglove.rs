@@ -328,6 +328,7 @@ mod tests {
             height_cm: 37,
             hits: 3,
             stamp_s: 5,
+            rev: 0,
         };
         let b = Tile::new(TileIndex { tx: 1, ty: 1 }, l);
         let g = tiles_grid(7, "map", [&a, &b]).unwrap();

@@ -1,8 +1,9 @@
-//! Tile codec v3: the wire cells ([`super::wire_cell`]) coded losslessly with an adaptive
+//! Tile codec v4: the wire cells ([`super::wire_cell`]) coded losslessly with an adaptive
 //! binary range coder under per-field context models, as lossless image codecs do (JBIG-like
 //! neighbour contexts for the classes, LOCO-I-like prediction and error contexts for heights).
+//! v3 is v4 without the cells' revisions (decoded as revision 0).
 //!
-//! Layout: `'T', 3`, postcard header (index, lattice, version), range-coded cells, CRC-32 of
+//! Layout: `'T', 4`, postcard header (index, lattice, version), range-coded cells, CRC-32 of
 //! everything before it (little endian). One routine, [`code_cells`], describes the format for
 //! both directions. Passes in raster order:
 //! 1. known or unknown, for every cell;
@@ -15,7 +16,8 @@
 //!    the west or south neighbour's), the height (residual of the west/south mean in contexts
 //!    of local activity and of the neighbours' residuals), the evidence (3 bits in the context
 //!    of two neighbours'), and the stamp ("same as a neighbour" flags in the context of the
-//!    neighbours' agreement, else a residual).
+//!    neighbours' agreement, else a residual) followed by its revision (v4 only: zero or not in
+//!    the context of the west and south neighbours' revisions, else its magnitude).
 
 use super::range_coder::{prob, BitCoder, Decoder, Encoder, Prob, ResidualModel, TreeModel};
 use super::{
@@ -25,7 +27,9 @@ use super::{
 use serde::{Deserialize, Serialize};
 
 /// Codec version written by [`encode`].
-pub const VERSION: u8 = 3;
+pub const VERSION: u8 = 4;
+/// The previous version: the same coding without the cells' revisions.
+pub const VERSION_V3: u8 = 3;
 
 /// Cells within this many cells of an obstacle cell get a distance key; farther ones share one.
 const DIST_RADIUS: i64 = 8;
@@ -59,6 +63,8 @@ struct Models {
     stamp_first: TreeModel,
     stamp_same: Vec<Prob>,
     stamps: Vec<ResidualModel>,
+    /// [west's revision zero, non-zero or absent][same for the south]: the revision (v4).
+    revs: Vec<ResidualModel>,
 }
 
 impl Models {
@@ -75,6 +81,7 @@ impl Models {
             stamp_first: TreeModel::new(8),
             stamp_same: vec![prob(); 32 * STAMP_CANDS],
             stamps: vec![ResidualModel::default(); 2],
+            revs: vec![ResidualModel::default(); 9],
         }
     }
 }
@@ -88,6 +95,7 @@ struct Wire {
     h_err: i64,
     hits: u8,
     q: i64,
+    rev: u16,
 }
 
 fn to_wire(c: &Cell) -> Wire {
@@ -98,6 +106,7 @@ fn to_wire(c: &Cell) -> Wire {
         h_err: 0,
         hits: w.hits,
         q: i64::from(w.stamp_s / WIRE_STAMP_STEP_S),
+        rev: w.rev,
     }
 }
 
@@ -150,12 +159,14 @@ impl Raster {
 }
 
 /// Codes the cells of an `n` x `n` tile: from `input` when encoding (which must hold wire
-/// values), into the returned cells when decoding (`input` None). The error says what a
-/// decoded stream got wrong.
+/// values), into the returned cells when decoding (`input` None). `revs`: the cells' revisions
+/// are coded (v4; without, they are left out and decode as 0). The error says what a decoded
+/// stream got wrong.
 fn code_cells<C: BitCoder>(
     c: &mut C,
     n: usize,
     input: Option<&[Cell]>,
+    revs: bool,
 ) -> Result<Vec<Cell>, &'static str> {
     let mut m = Models::new();
     let mut ras = Raster {
@@ -323,6 +334,13 @@ fn code_cells<C: BitCoder>(
         if !(0..=q_max).contains(&q) {
             return Err("stamp out of range");
         }
+        let rev = if revs {
+            let rb = |x: Option<Wire>| x.map_or(2, |x| usize::from(x.rev != 0));
+            let r = m.revs[rb(w) * 3 + rb(s)].code(c, i64::from(v_in.rev));
+            u16::try_from(r).map_err(|_| "revision out of range")?
+        } else {
+            0
+        };
         last_h = Some(h);
         last_q = Some(q);
         ras.wire[i] = Some(Wire {
@@ -331,6 +349,7 @@ fn code_cells<C: BitCoder>(
             h_err,
             hits,
             q,
+            rev,
         });
         out[i] = Cell {
             state,
@@ -338,6 +357,7 @@ fn code_cells<C: BitCoder>(
             height_cm: (h * i64::from(WIRE_HEIGHT_STEP_CM)) as i16,
             hits,
             stamp_s: (q * i64::from(WIRE_STAMP_STEP_S)) as u32,
+            rev,
         };
     }
     Ok(out)
@@ -389,14 +409,20 @@ pub fn field_bytes(tile: &Tile) -> [f64; 7] {
         &mut meter,
         tile.lattice.tile_cells as usize,
         Some(&tile.cells),
+        true,
     );
     std::array::from_fn(|k| meter.bits[k] / 8.0)
 }
 
 /// Encodes a tile (its wire cells, see [`super::wire_tile`]).
 pub fn encode(tile: &Tile) -> Vec<u8> {
+    encode_version(tile, VERSION)
+}
+
+/// Encodes a tile as codec `version` ([`VERSION`] or [`VERSION_V3`]).
+pub fn encode_version(tile: &Tile, version: u8) -> Vec<u8> {
     let n = tile.lattice.tile_cells as usize;
-    let mut out = vec![TILE_MAGIC, VERSION];
+    let mut out = vec![TILE_MAGIC, version];
     let header = Header {
         tx: tile.index.tx,
         ty: tile.index.ty,
@@ -406,14 +432,15 @@ pub fn encode(tile: &Tile) -> Vec<u8> {
     };
     out.extend(postcard::to_allocvec(&header).expect("tile header always encodes"));
     let mut e = Encoder::new();
-    code_cells(&mut e, n, Some(&tile.cells)).expect("wire values always encode");
+    code_cells(&mut e, n, Some(&tile.cells), version != VERSION_V3)
+        .expect("wire values always encode");
     out.extend(e.finish());
     let crc = crc32fast::hash(&out);
     out.extend(crc.to_le_bytes());
     out
 }
 
-/// Decodes a v3 tile (`bytes` starts with the magic and version).
+/// Decodes a v4 or v3 tile (`bytes` starts with the magic and version).
 pub fn decode(bytes: &[u8]) -> Result<Tile, TileCodecError> {
     let bad = |m: &str| Err(TileCodecError::Malformed(m.to_string()));
     if bytes.len() < 2 + 4 {
@@ -432,7 +459,7 @@ pub fn decode(bytes: &[u8]) -> Result<Tile, TileCodecError> {
         return bad("cell size not positive");
     }
     let mut d = Decoder::new(coded);
-    let cells = code_cells(&mut d, h.tile_cells as usize, None)
+    let cells = code_cells(&mut d, h.tile_cells as usize, None, bytes[1] != VERSION_V3)
         .map_err(|e| TileCodecError::Malformed(e.to_string()))?;
     Ok(Tile {
         index: TileIndex { tx: h.tx, ty: h.ty },

@@ -52,6 +52,11 @@ pub struct Cell {
     pub hits: u8,
     /// Time of the newest observation, Unix seconds (0 = never); the merge lets newer evidence win.
     pub stamp_s: u32,
+    /// Revision of the cell at its stamp and evidence: the publishing robot counts up each time
+    /// the cell's content changes on the wire while its (coarse) stamp and evidence do not move,
+    /// and restarts at 0 when they do ([`revise_cell`]). With it every consumer orders a robot's
+    /// versions of a cell the same way ([`cell_order`]); 0 in a robot's own map.
+    pub rev: u16,
 }
 
 impl Cell {
@@ -62,6 +67,7 @@ impl Cell {
         height_cm: 0,
         hits: 0,
         stamp_s: 0,
+        rev: 0,
     };
 }
 
@@ -197,10 +203,14 @@ impl Tile {
 
 /// First byte of every encoded tile.
 pub const TILE_MAGIC: u8 = b'T';
-/// Version of the tile codec layout [`encode_tile`] writes (3: context-modelled range coding of
-/// the wire cells; 2, still decoded: the same cells as zstd-compressed columns).
+/// Version of the tile codec layout [`encode_tile`] writes (4: context-modelled range coding of
+/// the wire cells with their revisions; 3, still decoded: the same without revisions, read as
+/// revision 0; 2, still decoded: the cells as zstd-compressed columns).
 pub const TILE_CODEC_VERSION: u8 = codec::VERSION;
-/// The previous layout, still decoded so stores written by older builds stay readable.
+/// Codec v3 (the cells without their revision), still decoded so stores and recordings written
+/// by older builds stay readable.
+pub const TILE_CODEC_VERSION_V3: u8 = codec::VERSION_V3;
+/// The v2 layout, still decoded so stores written by older builds stay readable.
 pub const TILE_CODEC_VERSION_V2: u8 = 2;
 /// zstd level of the v2 layout: 19 costs ~3 ms per full tile (a robot publishes tens a second at most) and
 /// entropy-codes the quantized columns ~20% smaller than level 3.
@@ -230,6 +240,59 @@ pub fn wire_cell(c: &Cell) -> Cell {
         height_cm: c.height_cm.div_euclid(WIRE_HEIGHT_STEP_CM) * WIRE_HEIGHT_STEP_CM,
         hits: c.hits.min(WIRE_HITS_MAX),
         stamp_s: c.stamp_s - c.stamp_s % WIRE_STAMP_STEP_S,
+        rev: c.rev,
+    }
+}
+
+/// The total order of cells that the merge keeps the greatest of (docs/algorithms.md 8.3):
+/// unknown below everything; then newer stamp, more evidence, higher revision; then, so that
+/// two different cells never tie, state, cost and height. Meant for wire cells ([`wire_cell`]),
+/// which is all a station has.
+pub fn cell_order(a: &Cell, b: &Cell) -> std::cmp::Ordering {
+    let known = |c: &Cell| c.state != CellState::Unknown;
+    let key = |c: &Cell| (c.stamp_s, c.hits, c.rev, c.state as u8, c.cost, c.height_cm);
+    match (known(a), known(b)) {
+        (false, false) => std::cmp::Ordering::Equal,
+        (ka, kb) if ka != kb => ka.cmp(&kb),
+        _ => key(a).cmp(&key(b)),
+    }
+}
+
+/// The cell a robot publishes when it last published `prev` and its map now holds `now` (both
+/// exact cells with Unix stamps; `prev` as published, revision included). Makes every change a
+/// consumer can see go up in [`cell_order`], so a robot's newest version of a cell is the
+/// greatest it ever published and a merge that keeps the greatest does not depend on which of
+/// its versions arrived or in which order:
+/// - a cell the robot stops knowing keeps its last published content (evidence is not
+///   retracted; the station never lets unknown win either);
+/// - the same on the wire: `now` with `prev`'s revision;
+/// - newer wire stamp or more wire evidence: `now`, revision 0;
+/// - otherwise (a change inside one 4 s stamp step with saturated evidence, such as an
+///   inflation ring moving): `now` with `prev`'s stamp and evidence where larger and the
+///   revision + 1 (saturating at `u16::MAX`, 18 hours of changes at one stamp at 1 Hz).
+pub fn revise_cell(prev: &Cell, now: &Cell) -> Cell {
+    if now.state == CellState::Unknown {
+        return *prev;
+    }
+    if prev.state == CellState::Unknown {
+        return Cell { rev: 0, ..*now };
+    }
+    let same_rev = Cell {
+        rev: prev.rev,
+        ..*now
+    };
+    let (wp, wn) = (wire_cell(prev), wire_cell(&same_rev));
+    if wn == wp {
+        return same_rev;
+    }
+    if (wn.stamp_s, wn.hits) > (wp.stamp_s, wp.hits) {
+        return Cell { rev: 0, ..*now };
+    }
+    Cell {
+        stamp_s: now.stamp_s.max(prev.stamp_s),
+        hits: now.hits.max(prev.hits),
+        rev: prev.rev.saturating_add(1),
+        ..*now
     }
 }
 
@@ -296,6 +359,12 @@ pub fn encode_tile(tile: &Tile) -> Vec<u8> {
     codec::encode(tile)
 }
 
+/// Encodes a tile in the v3 layout (revisions left out: they decode as 0): what the previous
+/// builds wrote, kept to show that their stores and recordings stay readable.
+pub fn encode_tile_v3(tile: &Tile) -> Vec<u8> {
+    codec::encode_version(tile, codec::VERSION_V3)
+}
+
 /// Encodes a tile in the v2 layout (postcard columns, then zstd): what older builds wrote, kept
 /// as the baseline the codec benchmarks compare against.
 pub fn encode_tile_v2(tile: &Tile) -> Vec<u8> {
@@ -353,7 +422,7 @@ pub fn encode_tile_v2(tile: &Tile) -> Vec<u8> {
 /// typed error, never a panic.
 pub fn decode_tile(bytes: &[u8]) -> Result<Tile, TileCodecError> {
     match bytes {
-        [TILE_MAGIC, TILE_CODEC_VERSION, ..] => codec::decode(bytes),
+        [TILE_MAGIC, TILE_CODEC_VERSION | TILE_CODEC_VERSION_V3, ..] => codec::decode(bytes),
         [TILE_MAGIC, TILE_CODEC_VERSION_V2, ..] => decode_tile_v2(bytes),
         [TILE_MAGIC, v, ..] => Err(TileCodecError::UnsupportedVersion(*v)),
         _ => Err(TileCodecError::BadMagic),
@@ -414,6 +483,7 @@ fn decode_tile_v2(bytes: &[u8]) -> Result<Tile, TileCodecError> {
             height_cm: h.wrapping_mul(WIRE_HEIGHT_STEP_CM),
             hits: wire.hits[j],
             stamp_s: q * WIRE_STAMP_STEP_S,
+            rev: 0,
         };
         j += 1;
     }
@@ -467,6 +537,7 @@ pub mod samples {
             height_cm: 1200 + (c / 10) as i16 + next(s).is_multiple_of(4) as i16,
             hits: 40 - (r / 4) as u8,
             stamp_s: 1_790_000_000 + (r as u32) / 8,
+            rev: 0,
         })
     }
 
@@ -492,6 +563,7 @@ pub mod samples {
                 height_cm: 300 + if sidewalk { 12 } else { 0 } + next(s).is_multiple_of(3) as i16,
                 hits: 30 - ((c + r) / 8) as u8,
                 stamp_s: 1_790_000_000 + ((c + r) / 6) as u32,
+                rev: 0,
             }
         })
     }
@@ -540,13 +612,14 @@ pub mod samples {
                     + (next(s) % 5) as i16,
                 hits: (60.0 - x.hypot(y) * 0.5) as u8,
                 stamp_s: 1_790_000_000 + (x.hypot(y) / 4.0) as u32,
+                rev: 0,
             }
         })
     }
 }
 
 /// A SHA-256 digest (hex) of a map's content: every tile's index and cells (state, cost, height,
-/// evidence, stamp), in tile order, whatever order `tiles` come in. Versions are left out: they
+/// evidence, stamp, revision), in tile order, whatever order `tiles` come in. Versions are left out: they
 /// count publications, not content. Two runs that built the same map have the same digest,
 /// which is how refactors and replays prove they changed nothing.
 pub fn map_digest(tiles: &[Tile]) -> String {
@@ -563,6 +636,7 @@ pub fn map_digest(tiles: &[Tile]) -> String {
             h.update([c.state as u8, c.cost, c.hits]);
             h.update(c.height_cm.to_le_bytes());
             h.update(c.stamp_s.to_le_bytes());
+            h.update(c.rev.to_le_bytes());
         }
     }
     h.finalize().iter().map(|b| format!("{b:02x}")).collect()
@@ -736,8 +810,15 @@ mod tests {
     }
 
     fn arb_cell() -> impl Strategy<Value = Cell> {
-        (0u8..4, any::<u8>(), any::<i16>(), any::<u8>(), any::<u32>()).prop_map(
-            |(s, cost, h, hits, stamp)| {
+        (
+            0u8..4,
+            any::<u8>(),
+            any::<i16>(),
+            any::<u8>(),
+            any::<u32>(),
+            prop_oneof![Just(0u16), 1u16..4, any::<u16>()],
+        )
+            .prop_map(|(s, cost, h, hits, stamp, rev)| {
                 let state = CellState::from_bits(s);
                 if state == CellState::Unknown {
                     Cell::UNKNOWN
@@ -748,10 +829,10 @@ mod tests {
                         height_cm: h,
                         hits,
                         stamp_s: stamp,
+                        rev,
                     }
                 }
-            },
-        )
+            })
     }
 
     proptest! {
@@ -771,7 +852,7 @@ mod tests {
             let lattice = Lattice { cell_size_m: 0.2, tile_cells: 8 };
             let mut t = Tile::new(TileIndex { tx: 0, ty: 0 }, lattice);
             for (c, s) in t.cells.iter_mut().zip(&stamps) {
-                *c = Cell { state: CellState::Traversable, cost: 0, height_cm: 0, hits: 1, stamp_s: *s };
+                *c = Cell { state: CellState::Traversable, cost: 0, height_cm: 0, hits: 1, stamp_s: *s, rev: 0 };
             }
             let back = decode_tile(&encode_tile(&t)).unwrap();
             for (a, w) in t.cells.iter().zip(&back.cells) {
@@ -823,7 +904,41 @@ mod tests {
             let lattice = Lattice { cell_size_m: 0.2, tile_cells: n };
             let nn = n as usize * n as usize;
             let t = Tile { index: TileIndex { tx: 3, ty: -4 }, lattice, version: 9, cells: cells[..nn].to_vec() };
-            prop_assert_eq!(decode_tile(&encode_tile_v2(&t)).unwrap(), wire_tile(&t));
+            let mut want = wire_tile(&t);
+            want.cells.iter_mut().for_each(|c| c.rev = 0);
+            prop_assert_eq!(decode_tile(&encode_tile_v2(&t)).unwrap(), want.clone());
+            // Codec v3 (the previous version) too: the same cells, revisions read as 0.
+            prop_assert_eq!(decode_tile(&encode_tile_v3(&t)).unwrap(), want);
+        }
+
+        #[test]
+        fn cell_order_is_total(a in arb_cell(), b in arb_cell(), c in arb_cell()) {
+            use std::cmp::Ordering::*;
+            let (a, b, c) = (wire_cell(&a), wire_cell(&b), wire_cell(&c));
+            // Equal only when equal: the greatest of any set is one cell, whatever the order.
+            prop_assert_eq!(cell_order(&a, &b) == Equal, a == b);
+            prop_assert_eq!(cell_order(&a, &b), cell_order(&b, &a).reverse());
+            if cell_order(&a, &b) != Greater && cell_order(&b, &c) != Greater {
+                prop_assert!(cell_order(&a, &c) != Greater);
+            }
+        }
+
+        #[test]
+        fn a_revised_change_goes_up_in_the_order(prev in arb_cell(), now in arb_cell()) {
+            use std::cmp::Ordering::*;
+            // What a robot publishes after `prev`: never lower in the order, higher whenever the
+            // wire shows a change, and unknown never replaces what it published.
+            let next = revise_cell(&prev, &now);
+            let (wp, wn) = (wire_cell(&prev), wire_cell(&next));
+            prop_assert!(cell_order(&wn, &wp) != Less);
+            if wn != wp && prev.rev < u16::MAX {
+                prop_assert_eq!(cell_order(&wn, &wp), Greater);
+            }
+            if now.state != CellState::Unknown {
+                prop_assert_eq!((next.state, next.cost, next.height_cm), (now.state, now.cost, now.height_cm));
+            } else {
+                prop_assert_eq!(next, prev);
+            }
         }
     }
 }

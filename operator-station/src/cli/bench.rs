@@ -147,6 +147,7 @@ pub fn robot_like_tile(index: TileIndex, version: u64, stamp_s: u32, seed: u64) 
                 height_cm: (((c * 3 + r * 2 + s) % 50) - 25) as i16,
                 hits: (1 + (c + s) % 20) as u8,
                 stamp_s: stamp_s + (r % 2) as u32,
+                rev: 0,
             };
         }
     }

@@ -200,6 +200,7 @@ mod tests {
             height_cm: 125,
             hits: 2,
             stamp_s: 1,
+            rev: 0,
         };
         let mut m = MergedMap::default();
         m.restore("d0", t);

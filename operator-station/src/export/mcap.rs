@@ -410,6 +410,7 @@ mod tests {
                 height_cm: 12,
                 hits: 4,
                 stamp_s: 1,
+                rev: 0,
             };
             tx.send(StoreOp::Tile {
                 datum_id: "d0".into(),

@@ -1,5 +1,9 @@
 //! The merged map: tiles of every robot merged per datum into one large map, newer evidence
-//! winning per cell (`Cell::stamp_s`, ties broken by `hits`).
+//! winning per cell: each cell is the greatest ever received in [`common::grid::cell_order`]
+//! (stamp, then evidence, then the robot's revision, then content). Robots publish every version
+//! of a cell greater than the last ([`common::grid::revise_cell`]), so the merged map is a
+//! function of each robot's newest tiles, whatever the station received before and in whatever
+//! order (docs/algorithms.md 8.3).
 //!
 //! [`MergedMap`] is plain data (no threads, no clock); [`MergeWorker`] runs it on its own thread
 //! fed by a channel so decoding and merging never block the network tasks. A tile is decoded
@@ -9,7 +13,9 @@
 use std::collections::BTreeMap;
 use std::sync::{mpsc, Arc, RwLock};
 
-use common::grid::{decode_tile, encode_tile, Cell, CellState, Lattice, Tile, TileIndex};
+use common::grid::{
+    cell_order, decode_tile, encode_tile, Cell, CellState, Lattice, Tile, TileIndex,
+};
 
 /// Why a tile was not merged.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -78,16 +84,11 @@ impl DatumMap {
     }
 }
 
-/// True when `new` is better evidence than `cur`: newer stamp, or same stamp and more hits.
-/// Unknown cells never win.
+/// True when `new` replaces `cur`: it is greater in [`cell_order`] (newer stamp, else more
+/// evidence, else a later revision of the same robot's cell, else the greater content, so two
+/// different cells never tie). Unknown cells never win.
 pub fn newer_wins(new: &Cell, cur: &Cell) -> bool {
-    if new.state == CellState::Unknown {
-        return false;
-    }
-    if cur.state == CellState::Unknown {
-        return true;
-    }
-    new.stamp_s > cur.stamp_s || (new.stamp_s == cur.stamp_s && new.hits > cur.hits)
+    cell_order(new, cur) == std::cmp::Ordering::Greater
 }
 
 /// A merged tile that changed.
@@ -487,6 +488,7 @@ mod tests {
             height_cm: h,
             hits,
             stamp_s,
+            rev: 0,
         }
     }
 
@@ -633,12 +635,145 @@ mod tests {
                 assert_eq!(m.datums[d].tiles, dm.tiles, "datum {d}, {threads} threads");
             }
         }
-        // The order does matter for tied cells: merged backwards the map differs, so the test
-        // above would have seen a thread count that reordered merges.
+        // Merged backwards the cells are the same (the order per cell is total) but the changes
+        // and versions differ, so the test above would have seen a thread count that reordered
+        // merges.
         let mut rev = jobs.clone();
         rev.reverse();
-        let (mr, _, _) = run_worker(&rev, 2);
-        assert_ne!(mr.datums["d0"].tiles, m1.datums["d0"].tiles);
+        let (mr, cr, _) = run_worker(&rev, 2);
+        assert_ne!(cr, c1);
+        for (d, dm) in &m1.datums {
+            for (i, t) in &dm.tiles {
+                assert_eq!(
+                    mr.datums[d].tiles[i].cells, t.cells,
+                    "datum {d}, tile {i:?}"
+                );
+            }
+        }
+    }
+
+    /// What `robots` robots publish of one small tile over `steps` publications, one second
+    /// apart (so several fall in one 4 s wire stamp step): per robot and publication, each cell
+    /// is observed again (stamp, evidence, height, class), changes class or cost without a new
+    /// observation (an inflation ring moving), is dropped by the mapper (unknown again), or
+    /// stays. Every version is revised as the robot's publisher does and goes through the codec.
+    /// The robots see the same cells at the same seconds, so they tie across robots too.
+    fn robot_versions(robots: u64, steps: u32) -> Vec<Vec<Tile>> {
+        let lattice = Lattice {
+            cell_size_m: 0.2,
+            tile_cells: 8,
+        };
+        let mut rng = 0x5eed_u64;
+        let mut next = move |k: u64| {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            rng % k
+        };
+        let states = [
+            CellState::Traversable,
+            CellState::Obstacle,
+            CellState::Inflated,
+        ];
+        (0..robots)
+            .map(|_| {
+                let mut live = Tile::new(TileIndex { tx: 1, ty: -1 }, lattice);
+                let mut published = live.clone();
+                (1..=steps)
+                    .map(|k| {
+                        let t_s = 1_790_000_000 + k;
+                        for c in &mut live.cells {
+                            match next(5) {
+                                0 | 1 => {
+                                    *c = Cell {
+                                        state: states[next(3) as usize],
+                                        cost: next(3) as u8 * 100,
+                                        height_cm: next(4) as i16 * 2,
+                                        hits: c.hits.saturating_add(1 + next(4) as u8),
+                                        stamp_s: t_s,
+                                        rev: 0,
+                                    }
+                                }
+                                2 if c.state != CellState::Unknown => {
+                                    c.state = states[next(3) as usize];
+                                    c.cost = next(3) as u8 * 100;
+                                }
+                                3 if next(3) == 0 => *c = Cell::UNKNOWN,
+                                _ => {}
+                            }
+                        }
+                        for (p, now) in published.cells.iter_mut().zip(&live.cells) {
+                            *p = common::grid::revise_cell(p, now);
+                        }
+                        published.version = u64::from(k);
+                        decode_tile(&encode_tile(&published)).unwrap()
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    fn merged_cells(tiles: &[&Tile]) -> Vec<Cell> {
+        let mut m = MergedMap::default();
+        for t in tiles {
+            m.merge("d0", t).unwrap();
+        }
+        m.datums["d0"].tiles[&TileIndex { tx: 1, ty: -1 }]
+            .cells
+            .clone()
+    }
+
+    /// Every permutation of `items` (Heap's algorithm).
+    fn permutations<T: Clone>(items: &[T]) -> Vec<Vec<T>> {
+        fn go<T: Clone>(k: usize, a: &mut Vec<T>, out: &mut Vec<Vec<T>>) {
+            if k <= 1 {
+                out.push(a.clone());
+                return;
+            }
+            for i in 0..k {
+                go(k - 1, a, out);
+                let j = if k % 2 == 0 { i } else { 0 };
+                a.swap(j, k - 1);
+            }
+        }
+        let mut out = Vec::new();
+        go(items.len(), &mut items.to_vec(), &mut out);
+        out
+    }
+
+    #[test]
+    fn the_merged_map_depends_only_on_each_robots_newest_tile() {
+        let robots = robot_versions(2, 4);
+        let newest: Vec<&Tile> = robots.iter().map(|v| v.last().unwrap()).collect();
+        let want = merged_cells(&newest);
+        assert!(
+            want.iter()
+                .filter(|c| c.state != CellState::Unknown)
+                .count()
+                > 40
+        );
+        let revised = robots.iter().flatten().flat_map(|t| &t.cells);
+        assert!(revised.filter(|c| c.rev > 0).count() > 10, "ties to break");
+        // Every version of both robots, in every one of the 8! orders.
+        let all: Vec<&Tile> = robots.iter().flatten().collect();
+        for (k, order) in permutations(&all).iter().enumerate() {
+            assert_eq!(merged_cells(order), want, "order {k}");
+        }
+        // A station that missed intermediate versions (joined late, a lossy link): every
+        // subset of each robot's older versions, with its newest, forwards and backwards.
+        for mask in 0u32..64 {
+            let mut got: Vec<&Tile> = Vec::new();
+            for (r, versions) in robots.iter().enumerate() {
+                for (v, t) in versions.iter().enumerate() {
+                    if v == versions.len() - 1 || mask >> (r * 3 + v) & 1 == 1 {
+                        got.push(t);
+                    }
+                }
+            }
+            assert_eq!(merged_cells(&got), want, "subset {mask:06b}");
+            got.reverse();
+            assert_eq!(merged_cells(&got), want, "subset {mask:06b} reversed");
+        }
     }
 
     #[test]

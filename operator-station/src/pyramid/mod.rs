@@ -324,6 +324,7 @@ mod tests {
                     height_cm: 0,
                     hits: 1,
                     stamp_s,
+                    rev: 0,
                 };
             }
         }

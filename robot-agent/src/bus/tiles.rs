@@ -9,13 +9,18 @@
 //!   most 2 Hz per tile; 1 Hz halves the bandwidth while driving, and the planner reads the live
 //!   grid, not tiles); its first publication goes out at once.
 //! - **Versions.** +1 per publication, per tile.
+//! - **Revisions.** Each published cell is [`common::grid::revise_cell`] of the one published
+//!   before: a change inside one wire stamp step gets the next revision, and a cell the mapper
+//!   stops knowing keeps its last published content. So every version of a cell the robot
+//!   publishes is greater in the merge's order than the ones before it, and a station's merged
+//!   map does not depend on which versions it received (docs/algorithms.md 8.2, 8.3).
 //! - **Time.** The mapper stamps cells in session seconds (it has no clock); the wire carries Unix
 //!   seconds so stations merge robots whose sessions started at different times. Every observed
 //!   cell is converted here, once, from the session's start.
 //!
 //! Pure: no Zenoh, no clock; the caller passes the session time.
 
-use common::grid::{Cell, CellState, Lattice, Tile, TileIndex};
+use common::grid::{revise_cell, Cell, CellState, Lattice, Tile, TileIndex};
 use std::collections::BTreeMap;
 
 /// The policy's parameters.
@@ -37,7 +42,8 @@ impl Default for TilePolicy {
 }
 
 struct Published {
-    /// Last published cells, session stamps (what the hysteresis compares against).
+    /// Last published cells, Unix stamps and revisions as published (what the hysteresis
+    /// compares against, and what the next publication revises).
     cells: Vec<Cell>,
     version: u64,
     last_s: f64,
@@ -87,10 +93,12 @@ impl TilePublisher {
             });
             if !p.changed {
                 let h = self.policy.height_hysteresis_cm;
+                // A cell the mapper stopped knowing is not news: it stays as published.
                 p.changed = p.cells.iter().zip(live).any(|(a, b)| {
-                    a.state != b.state
-                        || a.cost != b.cost
-                        || a.height_cm.wrapping_sub(b.height_cm).abs() >= h
+                    b.state != CellState::Unknown
+                        && (a.state != b.state
+                            || a.cost != b.cost
+                            || a.height_cm.wrapping_sub(b.height_cm).abs() >= h)
                 });
             }
         }
@@ -108,16 +116,18 @@ impl TilePublisher {
             p.version += 1;
             // Cells whose change was below the hysteresis are published as they are now, so the
             // next comparison is against what consumers hold.
-            p.cells.clear();
-            p.cells.extend_from_slice(live);
-            let mut tile = Tile {
+            let mut now = Tile {
                 index,
                 lattice: self.lattice,
                 version: p.version,
-                cells: p.cells.clone(),
+                cells: live.to_vec(),
             };
-            stamps_to_unix(&mut tile, self.session_start_unix_ms);
-            out.push(tile);
+            stamps_to_unix(&mut now, self.session_start_unix_ms);
+            for (held, new) in p.cells.iter_mut().zip(&now.cells) {
+                *held = revise_cell(held, new);
+            }
+            now.cells.clone_from(&p.cells);
+            out.push(now);
         }
         out
     }
@@ -181,6 +191,34 @@ mod tests {
         let forced = p.publish(1.1, &[T], |_| Some(&cells), true);
         assert_eq!(forced.len(), 1);
         assert_eq!(forced[0].version, 3);
+    }
+
+    #[test]
+    fn changes_at_one_stamp_get_revisions_and_known_cells_stay_known() {
+        let mut p = TilePublisher::new(TilePolicy::default(), lattice(), 0);
+        let mut cells = vec![Cell::UNKNOWN; 16];
+        cells[0] = cell(100);
+        cells[1] = cell(100);
+        let first = p.publish(0.0, &[T], |_| Some(&cells), false);
+        assert_eq!((first[0].cells[0].rev, first[0].cells[1].rev), (0, 0));
+        // Inflated within the same stamp step (no new observation): the next revision.
+        cells[0].state = CellState::Inflated;
+        cells[0].cost = 254;
+        // The mapper stops knowing cell 1: it is published as it was.
+        cells[1] = Cell::UNKNOWN;
+        let second = p.publish(1.0, &[T], |_| Some(&cells), false);
+        assert_eq!(second[0].cells[0].rev, 1);
+        assert_eq!(second[0].cells[0].state, CellState::Inflated);
+        assert_eq!(second[0].cells[1], first[0].cells[1]);
+        // Observed again in a later stamp step: revision 0 again.
+        cells[0].stamp_s = 20;
+        cells[0].height_cm = 150;
+        let third = p.publish(2.0, &[T], |_| Some(&cells), false);
+        assert_eq!((third[0].cells[0].rev, third[0].cells[0].stamp_s), (0, 20));
+        // Only the unknown cell differs from what was published: nothing is due.
+        cells[2] = cell(100);
+        cells[2] = Cell::UNKNOWN;
+        assert!(p.publish(3.0, &[T], |_| Some(&cells), false).is_empty());
     }
 
     #[test]

@@ -155,6 +155,7 @@ impl Mapper {
             height_cm,
             hits: d.hits.max(1),
             stamp_s: d.stamp_s,
+            rev: 0,
         }
     }
 
