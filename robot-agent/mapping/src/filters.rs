@@ -61,6 +61,8 @@ pub fn isolated_point_filter_where(
     let Some(k_query) = NonZeroUsize::new(k_max + 1) else {
         return 0;
     };
+    // One buffer for every query's distances (this runs for thousands of points a sweep).
+    let mut dists: Vec<f32> = Vec::with_capacity(k_max);
     let keep: Vec<bool> = points
         .iter()
         .zip(test)
@@ -74,7 +76,8 @@ pub fn isolated_point_filter_where(
                 .within(r_max * r_max)
                 .execute();
             // The point itself comes back at distance 0; skip one zero-distance entry.
-            let dists: Vec<f32> = nn.iter().skip(1).map(|n| n.distance.sqrt()).collect();
+            dists.clear();
+            dists.extend(nn.iter().skip(1).map(|n| n.distance.sqrt()));
             pairs.iter().all(|pair| {
                 if dists.len() < pair.knn_k {
                     return false;

@@ -538,3 +538,29 @@ fn a_distant_view_through_a_walkers_trail_clears_it_and_keeps_what_stays() {
         "control: without far clearing the trail should stay"
     );
 }
+
+#[test]
+fn a_view_is_the_cells_it_covers() {
+    // The view copies rows in runs per tile; it must equal reading every cell on its own,
+    // across tile edges, at windows not aligned to tiles and reaching past the held tiles.
+    let mut m = Mapper::new(Config::default()).unwrap();
+    drive(&mut m, &steps, &line((-2.0, 0.0), (2.0, 0.5), 0.0, 3.0));
+    let ((x0, y0), (x1, y1)) = m.bounds().unwrap();
+    let mut known = 0;
+    for (min_cx, min_cy, w, h) in [
+        (x0 - 7, y0 - 3, (x1 - x0 + 20) as u32, (y1 - y0 + 9) as u32),
+        (x0 + 5, y0 + 61, 130, 3),
+        (x1 - 2, y1 - 2, 1, 1),
+    ] {
+        let v = m.view(min_cx, min_cy, w, h);
+        assert_eq!(v.cells.len(), w as usize * h as usize);
+        for y in 0..i64::from(h) {
+            for x in 0..i64::from(w) {
+                let want = m.cell(min_cx + x, min_cy + y);
+                known += usize::from(want != common::grid::Cell::UNKNOWN);
+                assert_eq!(v.get(min_cx + x, min_cy + y), want, "({x}, {y})");
+            }
+        }
+    }
+    assert!(known > 1000, "{known}");
+}

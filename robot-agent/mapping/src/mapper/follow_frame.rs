@@ -68,7 +68,14 @@ impl Mapper {
             if nx * nx + ny * ny > r2 {
                 continue;
             }
-            for (i, d) in slot.data.iter_mut().enumerate() {
+            // Only cells ever handed out mutably can hold anything (see `TileSlot::held`).
+            let held = slot
+                .held
+                .iter()
+                .enumerate()
+                .flat_map(|(w, &bits)| BitIndices(bits).map(move |b| w * 64 + b));
+            for i in held {
+                let d = &mut slot.data[i];
                 let (c, r) = ((i as i64) % n, (i as i64) / n);
                 let x = (x0 + c) as f64 * l + 0.5 * l;
                 let y = (y0 + r) as f64 * l + 0.5 * l;
@@ -98,5 +105,22 @@ impl Mapper {
             r.z_m += dz_at(r.x_m, r.y_m, r.z_m);
         }
         moved
+    }
+}
+
+/// The indices of the set bits of a word, lowest first.
+struct BitIndices(u64);
+
+impl Iterator for BitIndices {
+    type Item = usize;
+
+    #[inline]
+    fn next(&mut self) -> Option<usize> {
+        if self.0 == 0 {
+            return None;
+        }
+        let b = self.0.trailing_zeros() as usize;
+        self.0 &= self.0 - 1;
+        Some(b)
     }
 }
