@@ -151,6 +151,7 @@ mod tests {
             height_cm: 0,
             hits: 3,
             stamp_s: 1,
+            rev: 0,
         };
         encode_tile(&t)
     }

@@ -35,6 +35,7 @@ impl Mapper {
                     data: vec![Default::default(); n * n],
                     ground: vec![f32::INFINITY; n * n],
                     live: vec![Cell::UNKNOWN; n * n],
+                    held: vec![0; (n * n).div_ceil(64)],
                     changed: false,
                 });
                 rebuilt.slot_of.insert(s.index, rebuilt.slots.len() - 1);
