@@ -213,7 +213,12 @@ pub fn run_live(
     if args.exit_with_parent {
         watch_parent(stop.clone());
     }
-    run::live::run_live(scenario, scenario_name, cfg, robot, bus, &opts, drive, stop)
+    let world = run::live::LiveWorld {
+        scenario,
+        name: scenario_name,
+        drive,
+    };
+    run::live::run_live(world, cfg, robot, bus, &opts, stop)
 }
 
 /// The live robot's bus: endpoints, certificates; checked here, before the world is built, so a

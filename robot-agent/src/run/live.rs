@@ -9,17 +9,30 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+/// The simulated world a live robot runs in.
+pub struct LiveWorld<'a> {
+    /// The scenario.
+    pub scenario: &'a sim::Scenario,
+    /// Its name (the session's source is `sim:<name>`).
+    pub name: &'a str,
+    /// `--follow-drive`: a scripted drive that has the wheels until its polyline is done.
+    pub drive: Option<&'a sim::scenario::RouteSpec>,
+}
+
 /// Runs one simulated robot on the bus until `stop` is set (Ctrl-C) or the process is killed.
 pub fn run_live(
-    scenario: &sim::Scenario,
-    scenario_name: &str,
+    world: LiveWorld<'_>,
     cfg: AgentConfig,
     robot: RobotId,
     bus_cfg: BusConfig,
     opts: &HeadlessOptions,
-    drive: Option<&sim::scenario::RouteSpec>,
     stop: Arc<AtomicBool>,
 ) -> anyhow::Result<()> {
+    let LiveWorld {
+        scenario,
+        name: scenario_name,
+        drive,
+    } = world;
     let mut rig = Rig::new(scenario, cfg, opts, robot.as_str())?;
     // `--follow-drive`: the scripted driver has the wheels until the polyline is done.
     let mut driver = drive.map(|d| sim::drive::PathDriver::new(&d.points, d.speed_mps));
