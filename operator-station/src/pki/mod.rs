@@ -29,7 +29,7 @@ use rcgen::{
 use serde::Serialize;
 use time::{Duration, OffsetDateTime};
 
-use register::{Issued, Register};
+use register::{Issued, Kind, Register};
 
 /// Validity of the fleet CA, days.
 pub const CA_DAYS: i64 = 3650;
@@ -269,6 +269,117 @@ fn load_issuer(fleet: &FleetDir) -> anyhow::Result<Issuer<'static, KeyPair>> {
     Issuer::from_ca_cert_pem(&cert_pem, key).context("the CA certificate")
 }
 
+/// A leaf certificate issued and written to its folder.
+struct Leaf {
+    serial: u32,
+    cn: String,
+    dir: PathBuf,
+    not_after_unix_s: i64,
+    superseded_serial: Option<u32>,
+}
+
+/// Issues the next certificate of `id` (valid `days`, for the loopback names and `hosts`), writes
+/// it with its key and the CA certificate into the id's folder, and records it in the register;
+/// the id's previous certificate is superseded.
+fn issue_leaf(
+    dir: &Path,
+    kind: Kind,
+    id: &str,
+    hosts: &[String],
+    days: i64,
+) -> anyhow::Result<Leaf> {
+    if !(1..=3650).contains(&days) {
+        bail!("--days must be 1-3650");
+    }
+    let fleet = require_fleet(dir)?;
+    let issuer = load_issuer(&fleet)?;
+    let mut reg = read_register(&fleet)?;
+    let superseded_serial = reg
+        .newest(kind, id)
+        .filter(|i| i.revoked_unix_s.is_none())
+        .map(|i| i.serial);
+    let serial = reg.next_serial(kind, id);
+    let (cn, ldir, files) = leaf_names(&fleet, kind, id, serial)?;
+    let params = leaf_params(&cn, names(hosts), days)?;
+    let not_after_unix_s = params.not_after.unix_timestamp();
+    let noun = kind.noun();
+    let key = KeyPair::generate().with_context(|| format!("generate the {noun} key"))?;
+    let cert = params
+        .signed_by(&key, &issuer)
+        .with_context(|| format!("sign the {noun} certificate"))?;
+    private_dir(ldir.parent().unwrap_or(dir))?;
+    private_dir(&ldir)?;
+    let ca_pem = std::fs::read_to_string(fleet.ca_cert())?;
+    write_private(&files.key, &key.serialize_pem())?;
+    write_public(&files.cert, &cert.pem())?;
+    write_public(&files.ca, &ca_pem)?;
+    reg.push(
+        kind,
+        Issued {
+            id: id.to_string(),
+            serial,
+            cn: cn.clone(),
+            issued_unix_s: now().unix_timestamp(),
+            not_after_unix_s,
+            revoked_unix_s: None,
+        },
+    );
+    write_register(&fleet, &reg)?;
+    Ok(Leaf {
+        serial,
+        cn,
+        dir: ldir,
+        not_after_unix_s,
+        superseded_serial,
+    })
+}
+
+/// The common name, folder and file names of `id`'s certificate number `serial`.
+fn leaf_names(
+    fleet: &FleetDir,
+    kind: Kind,
+    id: &str,
+    serial: u32,
+) -> anyhow::Result<(String, PathBuf, security::CertFiles)> {
+    Ok(match kind {
+        Kind::Robot => {
+            let robot = RobotId::new(id).map_err(|e| anyhow::anyhow!("{e}"))?;
+            let d = fleet.robot_dir(&robot);
+            let files = security::CertFiles::robot(&d);
+            (security::robot_cn(&robot, serial), d, files)
+        }
+        Kind::Monitor => {
+            security::check_monitor_name(id).map_err(|e| anyhow::anyhow!(e))?;
+            let d = fleet.monitor_dir(id);
+            let files = security::CertFiles::monitor(&d);
+            (security::monitor_cn(id, serial), d, files)
+        }
+    })
+}
+
+/// Marks every certificate of `id` revoked (running stations and routers re-read the register and
+/// refuse it) and deletes the station's copy of its folder. Returns how many certificates were
+/// valid and whether the folder was deleted.
+fn revoke_leaf(dir: &Path, kind: Kind, id: &str) -> anyhow::Result<(usize, bool)> {
+    let fleet = require_fleet(dir)?;
+    let mut reg = read_register(&fleet)?;
+    if reg.newest(kind, id).is_none() {
+        bail!(
+            "no certificate was ever issued to {} {id} in {}",
+            kind.noun(),
+            dir.display()
+        );
+    }
+    let revoked = reg.revoke(kind, id, now().unix_timestamp());
+    write_register(&fleet, &reg)?;
+    let (_, ldir, _) = leaf_names(&fleet, kind, id, 0)?;
+    let deleted = ldir.is_dir();
+    if deleted {
+        std::fs::remove_dir_all(&ldir).with_context(|| format!("delete {}", ldir.display()))?;
+    }
+    Ok((revoked, deleted))
+}
+
 /// `pki issue`: a new certificate for `robot` (valid `days`, for the loopback names and `hosts`,
 /// so a station may link to the robot's own listener), in `robots/<id>/` with the CA certificate.
 /// A previous certificate of the robot is superseded: the station admits the new one only.
@@ -278,48 +389,14 @@ pub fn issue(
     hosts: &[String],
     days: i64,
 ) -> anyhow::Result<IssueReport> {
-    if !(1..=3650).contains(&days) {
-        bail!("--days must be 1-3650");
-    }
-    let fleet = require_fleet(dir)?;
-    let issuer = load_issuer(&fleet)?;
-    let mut reg = read_register(&fleet)?;
-    let previous = reg
-        .newest(robot.as_str())
-        .filter(|i| i.revoked_unix_s.is_none());
-    let superseded_serial = previous.map(|i| i.serial);
-    let serial = reg.next_serial(robot);
-    let cn = security::robot_cn(robot, serial);
-    let params = leaf_params(&cn, names(hosts), days)?;
-    let not_after_unix_s = params.not_after.unix_timestamp();
-    let key = KeyPair::generate().context("generate the robot key")?;
-    let cert = params
-        .signed_by(&key, &issuer)
-        .context("sign the robot certificate")?;
-    let rdir = fleet.robot_dir(robot);
-    private_dir(&dir.join("robots"))?;
-    private_dir(&rdir)?;
-    let files = security::CertFiles::robot(&rdir);
-    let ca_pem = std::fs::read_to_string(fleet.ca_cert())?;
-    write_private(&files.key, &key.serialize_pem())?;
-    write_public(&files.cert, &cert.pem())?;
-    write_public(&files.ca, &ca_pem)?;
-    reg.robots.push(Issued {
-        robot: robot.to_string(),
-        serial,
-        cn: cn.clone(),
-        issued_unix_s: now().unix_timestamp(),
-        not_after_unix_s,
-        revoked_unix_s: None,
-    });
-    write_register(&fleet, &reg)?;
+    let leaf = issue_leaf(dir, Kind::Robot, robot.as_str(), hosts, days)?;
     Ok(IssueReport {
         robot: robot.to_string(),
-        serial,
-        cn,
-        robot_dir: rdir,
-        not_after_unix_s,
-        superseded_serial,
+        serial: leaf.serial,
+        cn: leaf.cn,
+        robot_dir: leaf.dir,
+        not_after_unix_s: leaf.not_after_unix_s,
+        superseded_serial: leaf.superseded_serial,
     })
 }
 
@@ -345,51 +422,16 @@ pub struct MonitorReport {
 /// it to watch, never to command; robots admit it to nothing. Issuing again supersedes the
 /// previous certificate.
 pub fn add_monitor(dir: &Path, name: &str, days: i64) -> anyhow::Result<MonitorReport> {
-    security::check_monitor_name(name).map_err(|e| anyhow::anyhow!(e))?;
-    if !(1..=3650).contains(&days) {
-        bail!("--days must be 1-3650");
-    }
-    let fleet = require_fleet(dir)?;
-    let issuer = load_issuer(&fleet)?;
-    let mut reg = read_register(&fleet)?;
-    let superseded_serial = reg
-        .newest_monitor(name)
-        .filter(|i| i.revoked_unix_s.is_none())
-        .map(|i| i.serial);
-    let serial = reg.next_monitor_serial(name);
-    let cn = security::monitor_cn(name, serial);
     // A monitor only connects (it is a Zenoh client of a station or router): loopback names are
     // enough for its certificate.
-    let params = leaf_params(&cn, names(&[]), days)?;
-    let not_after_unix_s = params.not_after.unix_timestamp();
-    let key = KeyPair::generate().context("generate the monitor key")?;
-    let cert = params
-        .signed_by(&key, &issuer)
-        .context("sign the monitor certificate")?;
-    let mdir = fleet.monitor_dir(name);
-    private_dir(&dir.join("monitors"))?;
-    private_dir(&mdir)?;
-    let files = security::CertFiles::monitor(&mdir);
-    let ca_pem = std::fs::read_to_string(fleet.ca_cert())?;
-    write_private(&files.key, &key.serialize_pem())?;
-    write_public(&files.cert, &cert.pem())?;
-    write_public(&files.ca, &ca_pem)?;
-    reg.monitors.push(register::IssuedMonitor {
-        name: name.to_string(),
-        serial,
-        cn: cn.clone(),
-        issued_unix_s: now().unix_timestamp(),
-        not_after_unix_s,
-        revoked_unix_s: None,
-    });
-    write_register(&fleet, &reg)?;
+    let leaf = issue_leaf(dir, Kind::Monitor, name, &[], days)?;
     Ok(MonitorReport {
         monitor: name.to_string(),
-        serial,
-        cn,
-        monitor_dir: mdir,
-        not_after_unix_s,
-        superseded_serial,
+        serial: leaf.serial,
+        cn: leaf.cn,
+        monitor_dir: leaf.dir,
+        not_after_unix_s: leaf.not_after_unix_s,
+        superseded_serial: leaf.superseded_serial,
     })
 }
 
@@ -408,21 +450,7 @@ pub struct RevokeMonitorReport {
 /// routers re-read the register and refuse it) and deletes the station's copy of its files.
 pub fn revoke_monitor(dir: &Path, name: &str) -> anyhow::Result<RevokeMonitorReport> {
     security::check_monitor_name(name).map_err(|e| anyhow::anyhow!(e))?;
-    let fleet = require_fleet(dir)?;
-    let mut reg = read_register(&fleet)?;
-    if reg.newest_monitor(name).is_none() {
-        bail!(
-            "no certificate was ever issued to monitor {name} in {}",
-            dir.display()
-        );
-    }
-    let revoked = reg.revoke_monitor(name, now().unix_timestamp());
-    write_register(&fleet, &reg)?;
-    let mdir = fleet.monitor_dir(name);
-    let deleted_monitor_dir = mdir.is_dir();
-    if deleted_monitor_dir {
-        std::fs::remove_dir_all(&mdir).with_context(|| format!("delete {}", mdir.display()))?;
-    }
+    let (revoked, deleted_monitor_dir) = revoke_leaf(dir, Kind::Monitor, name)?;
     Ok(RevokeMonitorReport {
         monitor: name.to_string(),
         revoked,
@@ -433,21 +461,7 @@ pub fn revoke_monitor(dir: &Path, name: &str) -> anyhow::Result<RevokeMonitorRep
 /// `pki revoke`: marks every certificate of `robot` revoked in the register (a running station
 /// re-reads it and drops the robot) and deletes the station's copy of the robot's files.
 pub fn revoke(dir: &Path, robot: &RobotId) -> anyhow::Result<RevokeReport> {
-    let fleet = require_fleet(dir)?;
-    let mut reg = read_register(&fleet)?;
-    if reg.newest(robot.as_str()).is_none() {
-        bail!(
-            "no certificate was ever issued to robot {robot} in {}",
-            dir.display()
-        );
-    }
-    let revoked = reg.revoke(robot, now().unix_timestamp());
-    write_register(&fleet, &reg)?;
-    let rdir = fleet.robot_dir(robot);
-    let deleted_robot_dir = rdir.is_dir();
-    if deleted_robot_dir {
-        std::fs::remove_dir_all(&rdir).with_context(|| format!("delete {}", rdir.display()))?;
-    }
+    let (revoked, deleted_robot_dir) = revoke_leaf(dir, Kind::Robot, robot.as_str())?;
     Ok(RevokeReport {
         robot: robot.to_string(),
         revoked,

@@ -7,32 +7,36 @@ use common::keys::RobotId;
 use common::security::{AdmittedMonitor, AdmittedRobot};
 use serde::{Deserialize, Serialize};
 
-/// One issued robot certificate.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Issued {
-    /// Robot id.
-    pub robot: String,
-    /// Issue number of this robot (1, 2, ...): part of the common name.
-    pub serial: u32,
-    /// The certificate's common name (`terranav:robot:<id>:<serial>`).
-    pub cn: String,
-    /// When issued, Unix seconds.
-    pub issued_unix_s: i64,
-    /// End of validity, Unix seconds.
-    pub not_after_unix_s: i64,
-    /// When revoked, Unix seconds.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub revoked_unix_s: Option<i64>,
+/// Whom a leaf certificate names: a robot, or a monitor (a read-only station, `pki add-monitor`).
+/// Both follow one life cycle in the register: numbered issues, the newest unrevoked one admitted.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    /// A robot (`terranav:robot:<id>:<serial>`).
+    Robot,
+    /// A monitor (`terranav:monitor:<name>:<serial>`).
+    Monitor,
 }
 
-/// One issued monitor certificate (a read-only station: `pki add-monitor`).
+impl Kind {
+    /// The word for messages (`robot`, `monitor`).
+    pub fn noun(self) -> &'static str {
+        match self {
+            Kind::Robot => "robot",
+            Kind::Monitor => "monitor",
+        }
+    }
+}
+
+/// One issued certificate.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub struct IssuedMonitor {
-    /// Monitor name.
-    pub name: String,
-    /// Issue number of this monitor (1, 2, ...): part of the common name.
+pub struct Issued {
+    /// Robot id or monitor name. Registers written before monitors existed name it `robot`,
+    /// monitors' entries named it `name`; both still read.
+    #[serde(alias = "robot", alias = "name")]
+    pub id: String,
+    /// Issue number for this id (1, 2, ...): part of the common name.
     pub serial: u32,
-    /// The certificate's common name (`terranav:monitor:<name>:<serial>`).
+    /// The certificate's common name (`terranav:<kind>:<id>:<serial>`).
     pub cn: String,
     /// When issued, Unix seconds.
     pub issued_unix_s: i64,
@@ -51,7 +55,7 @@ pub struct Register {
     pub robots: Vec<Issued>,
     /// Every monitor certificate ever issued, oldest first.
     #[serde(default, rename = "monitor", skip_serializing_if = "Vec::is_empty")]
-    pub monitors: Vec<IssuedMonitor>,
+    pub monitors: Vec<Issued>,
 }
 
 impl Register {
@@ -70,32 +74,45 @@ impl Register {
         )
     }
 
-    /// The next issue number of `robot`.
-    pub fn next_serial(&self, robot: &RobotId) -> u32 {
-        self.robots
-            .iter()
-            .filter(|i| i.robot == robot.as_str())
-            .map(|i| i.serial)
-            .max()
-            .unwrap_or(0)
-            + 1
+    /// The certificates of one kind, oldest first.
+    pub fn entries(&self, kind: Kind) -> &[Issued] {
+        match kind {
+            Kind::Robot => &self.robots,
+            Kind::Monitor => &self.monitors,
+        }
     }
 
-    /// The newest certificate of `robot`, if any.
-    pub fn newest(&self, robot: &str) -> Option<&Issued> {
-        self.robots
+    /// Records a newly issued certificate.
+    pub fn push(&mut self, kind: Kind, issued: Issued) {
+        match kind {
+            Kind::Robot => self.robots.push(issued),
+            Kind::Monitor => self.monitors.push(issued),
+        }
+    }
+
+    /// The next issue number of `id`.
+    pub fn next_serial(&self, kind: Kind, id: &str) -> u32 {
+        self.newest(kind, id).map_or(0, |i| i.serial) + 1
+    }
+
+    /// The newest certificate of `id`, if any.
+    pub fn newest(&self, kind: Kind, id: &str) -> Option<&Issued> {
+        self.entries(kind)
             .iter()
-            .filter(|i| i.robot == robot)
+            .filter(|i| i.id == id)
             .max_by_key(|i| i.serial)
     }
 
-    /// Marks every certificate of `robot` revoked at `now_unix_s`; returns how many were valid.
-    pub fn revoke(&mut self, robot: &RobotId, now_unix_s: i64) -> usize {
+    /// Marks every certificate of `id` revoked at `now_unix_s`; returns how many were valid.
+    pub fn revoke(&mut self, kind: Kind, id: &str, now_unix_s: i64) -> usize {
+        let list = match kind {
+            Kind::Robot => &mut self.robots,
+            Kind::Monitor => &mut self.monitors,
+        };
         let mut n = 0;
-        for i in self
-            .robots
+        for i in list
             .iter_mut()
-            .filter(|i| i.robot == robot.as_str() && i.revoked_unix_s.is_none())
+            .filter(|i| i.id == id && i.revoked_unix_s.is_none())
         {
             i.revoked_unix_s = Some(now_unix_s);
             n += 1;
@@ -103,77 +120,43 @@ impl Register {
         n
     }
 
-    /// The robots the station admits at `now_unix_s`: each robot's newest certificate, unless it is
-    /// revoked or expired. Bad ids in a hand-edited file are skipped.
-    pub fn admitted(&self, now_unix_s: i64) -> Vec<AdmittedRobot> {
-        let mut ids: Vec<&str> = self.robots.iter().map(|i| i.robot.as_str()).collect();
+    /// Each id's newest certificate of one kind at `now_unix_s`, unless it is revoked or expired:
+    /// `(id, common name)`, sorted by id.
+    fn admitted_of(&self, kind: Kind, now_unix_s: i64) -> Vec<(&str, String)> {
+        let mut ids: Vec<&str> = self.entries(kind).iter().map(|i| i.id.as_str()).collect();
         ids.sort_unstable();
         ids.dedup();
         ids.into_iter()
             .filter_map(|id| {
-                let i = self.newest(id)?;
-                if i.revoked_unix_s.is_some() || i.not_after_unix_s < now_unix_s {
-                    return None;
-                }
+                let i = self.newest(kind, id)?;
+                (i.revoked_unix_s.is_none() && i.not_after_unix_s >= now_unix_s)
+                    .then(|| (id, i.cn.clone()))
+            })
+            .collect()
+    }
+
+    /// The robots the station admits at `now_unix_s`. Bad ids in a hand-edited file are skipped.
+    pub fn admitted(&self, now_unix_s: i64) -> Vec<AdmittedRobot> {
+        self.admitted_of(Kind::Robot, now_unix_s)
+            .into_iter()
+            .filter_map(|(id, cn)| {
                 Some(AdmittedRobot {
                     robot: RobotId::new(id).ok()?,
-                    cn: i.cn.clone(),
+                    cn,
                 })
             })
             .collect()
     }
 
-    /// The next issue number of monitor `name`.
-    pub fn next_monitor_serial(&self, name: &str) -> u32 {
-        self.monitors
-            .iter()
-            .filter(|i| i.name == name)
-            .map(|i| i.serial)
-            .max()
-            .unwrap_or(0)
-            + 1
-    }
-
-    /// The newest certificate of monitor `name`, if any.
-    pub fn newest_monitor(&self, name: &str) -> Option<&IssuedMonitor> {
-        self.monitors
-            .iter()
-            .filter(|i| i.name == name)
-            .max_by_key(|i| i.serial)
-    }
-
-    /// Marks every certificate of monitor `name` revoked; returns how many were valid.
-    pub fn revoke_monitor(&mut self, name: &str, now_unix_s: i64) -> usize {
-        let mut n = 0;
-        for i in self
-            .monitors
-            .iter_mut()
-            .filter(|i| i.name == name && i.revoked_unix_s.is_none())
-        {
-            i.revoked_unix_s = Some(now_unix_s);
-            n += 1;
-        }
-        n
-    }
-
-    /// The monitors the station admits at `now_unix_s`: each one's newest certificate, unless it
-    /// is revoked or expired. Bad names in a hand-edited file are skipped.
+    /// The monitors the station admits at `now_unix_s`. Bad names in a hand-edited file are
+    /// skipped.
     pub fn admitted_monitors(&self, now_unix_s: i64) -> Vec<AdmittedMonitor> {
-        let mut names: Vec<&str> = self.monitors.iter().map(|i| i.name.as_str()).collect();
-        names.sort_unstable();
-        names.dedup();
-        names
+        self.admitted_of(Kind::Monitor, now_unix_s)
             .into_iter()
-            .filter(|n| common::security::check_monitor_name(n).is_ok())
-            .filter_map(|n| {
-                let i = self.newest_monitor(n)?;
-                if i.revoked_unix_s.is_some() || i.not_after_unix_s < now_unix_s {
-                    return None;
-                }
-                Some(AdmittedMonitor {
-                    name: n.to_string(),
-                    cn: i.cn.clone(),
-                })
+            .filter(|(n, _)| common::security::check_monitor_name(n).is_ok())
+            .map(|(n, cn)| AdmittedMonitor {
+                name: n.to_string(),
+                cn,
             })
             .collect()
     }
@@ -185,7 +168,7 @@ mod tests {
 
     fn issued(robot: &str, serial: u32) -> Issued {
         Issued {
-            robot: robot.into(),
+            id: robot.into(),
             serial,
             cn: format!("terranav:robot:{robot}:{serial}"),
             issued_unix_s: 100,
@@ -208,12 +191,11 @@ mod tests {
             ["terranav:robot:a:2", "terranav:robot:b:1"],
             "a's first certificate is superseded"
         );
-        assert_eq!(r.revoke(&RobotId::new("a").unwrap(), 600), 2);
+        assert_eq!(r.revoke(Kind::Robot, "a", 600), 2);
         assert_eq!(cns(&r, 700), ["terranav:robot:b:1"]);
         assert!(cns(&r, 2000).is_empty(), "expired");
         // Re-issuing after a revocation admits the new certificate, never the revoked ones.
-        let a = RobotId::new("a").unwrap();
-        assert_eq!(r.next_serial(&a), 3);
+        assert_eq!(r.next_serial(Kind::Robot, "a"), 3);
         r.robots.push(issued("a", 3));
         assert_eq!(cns(&r, 700), ["terranav:robot:a:3", "terranav:robot:b:1"]);
         let back = Register::parse(&r.to_text()).unwrap();
@@ -222,8 +204,8 @@ mod tests {
 
     #[test]
     fn newest_unrevoked_monitor_is_admitted_only_and_robots_are_untouched() {
-        let m = |name: &str, serial| IssuedMonitor {
-            name: name.into(),
+        let m = |name: &str, serial| Issued {
+            id: name.into(),
             serial,
             cn: common::security::monitor_cn(name, serial),
             issued_unix_s: 100,
@@ -241,8 +223,8 @@ mod tests {
             cns(&r, 500),
             ["terranav:monitor:hq:1", "terranav:monitor:ops:2"]
         );
-        assert_eq!(r.next_monitor_serial("ops"), 3);
-        assert_eq!(r.revoke_monitor("ops", 600), 2);
+        assert_eq!(r.next_serial(Kind::Monitor, "ops"), 3);
+        assert_eq!(r.revoke(Kind::Monitor, "ops", 600), 2);
         assert_eq!(cns(&r, 700), ["terranav:monitor:hq:1"]);
         assert_eq!(r.admitted(700).len(), 1, "robots are not touched");
         assert!(cns(&r, 2000).is_empty(), "expired");
@@ -251,5 +233,8 @@ mod tests {
         // A register written before monitors existed still reads.
         let old = Register::parse("[[robot]]\nrobot = \"a\"\nserial = 1\ncn = \"terranav:robot:a:1\"\nissued_unix_s = 1\nnot_after_unix_s = 9\n").unwrap();
         assert!(old.monitors.is_empty() && old.robots.len() == 1);
+        assert_eq!(old.robots[0].id, "a");
+        let m = Register::parse("[[monitor]]\nname = \"ops\"\nserial = 1\ncn = \"terranav:monitor:ops:1\"\nissued_unix_s = 1\nnot_after_unix_s = 9\n").unwrap();
+        assert_eq!(m.monitors[0].id, "ops");
     }
 }
