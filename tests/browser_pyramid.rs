@@ -10,20 +10,19 @@
 //! Skips with a notice only when `/usr/bin/chromium` or `web/node_modules` is missing; CI installs
 //! both.
 
+mod browser_support;
 mod station_support;
 
-use std::fs::File;
 use std::path::Path;
-use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use anyhow::{bail, Context};
+use anyhow::Context;
+use browser_support::{browser_unavailable, run_ui_script};
 use common::grid::{encode_tile, Cell, CellState, Lattice, Tile, TileIndex};
-use operator_station::store::{DatumRow, SessionRow, StoreOp, StoreWriter};
+use operator_station::store::{DatumRow, HistoryStamp, SessionRow, StoreOp, StoreWriter};
 use station_support::{Ports, Station};
-use support::{workspace_root, KillOnDrop};
+use support::workspace_root;
 
-const CHROMIUM: &str = "/usr/bin/chromium";
 /// Upper bound for the whole node script; its own steps time out well before this.
 const UI_TEST_LIMIT: Duration = Duration::from_secs(150);
 /// Merged tiles per side: 78 x 12.8 m = 998 m.
@@ -94,20 +93,16 @@ fn write_site(db: &Path) -> anyhow::Result<usize> {
             } else {
                 EAST_MAPPED_MS
             };
-            tx.send(StoreOp::TileHistory {
-                datum_id: "d0".into(),
-                tx: txi,
-                ty,
-                bucket: operator_station::history::bucket(mapped_ms, HISTORY_PERIOD_S),
-                t_unix_ms: mapped_ms,
-                data: data.clone(),
-            })?;
             tx.send(StoreOp::Tile {
                 datum_id: "d0".into(),
                 tx: txi,
                 ty,
                 version: 1,
                 data,
+                history: Some(HistoryStamp {
+                    bucket: operator_station::history::bucket(mapped_ms, HISTORY_PERIOD_S),
+                    t_unix_ms: mapped_ms,
+                }),
             })?;
             n += 1;
         }
@@ -142,13 +137,8 @@ fn write_site(db: &Path) -> anyhow::Result<usize> {
 #[test]
 fn a_site_sized_map_shows_at_once_through_the_zoom_pyramid() -> anyhow::Result<()> {
     let root = workspace_root();
-    if !Path::new(CHROMIUM).exists() {
-        println!("skipping browser pyramid test: {CHROMIUM} is missing (apt-get install chromium)");
-        return Ok(());
-    }
-    let modules = root.join("web/node_modules");
-    if !modules.join("playwright-core").is_dir() || !modules.join("leaflet").is_dir() {
-        println!("skipping browser pyramid test: web/node_modules is missing (cd web && npm ci)");
+    if let Some(why) = browser_unavailable(&root) {
+        println!("skipping browser pyramid test: {why}");
         return Ok(());
     }
     let artifacts = root.join("artifacts/ui-pyramid");
@@ -169,41 +159,13 @@ fn a_site_sized_map_shows_at_once_through_the_zoom_pyramid() -> anyhow::Result<(
         t.elapsed().as_secs_f64()
     );
     let url = format!("http://127.0.0.1:{}/", station.ports.http);
-    let ui_out = artifacts.join("pyramid.stdout.log");
-    let ui_err = artifacts.join("pyramid.stderr.log");
-    let mut ui = KillOnDrop::spawn(
-        Command::new("node")
-            .arg(root.join("web/tests/pyramid.mjs"))
-            .arg(&url)
-            .args(["--tiles", &tiles.to_string()])
-            .current_dir(&root)
-            .env("TERRANAV_ARTIFACTS", &artifacts)
-            .stdin(Stdio::null())
-            .stdout(File::create(&ui_out)?)
-            .stderr(File::create(&ui_err)?),
+    run_ui_script(
+        &root,
+        "pyramid.mjs",
+        &[url, "--tiles".into(), tiles.to_string()],
+        &artifacts,
+        UI_TEST_LIMIT,
     )
-    .context("run node web/tests/pyramid.mjs (is node installed?)")?;
-    let started = Instant::now();
-    let status = loop {
-        if let Some(s) = ui.0.try_wait()? {
-            break Some(s);
-        }
-        if started.elapsed() > UI_TEST_LIMIT {
-            break None;
-        }
-        std::thread::sleep(Duration::from_millis(200));
-    };
-    println!("{}", std::fs::read_to_string(&ui_out).unwrap_or_default());
-    let stderr = std::fs::read_to_string(&ui_err).unwrap_or_default();
-    println!("{stderr}");
-    match status {
-        None => bail!("web/tests/pyramid.mjs did not finish within {UI_TEST_LIMIT:?}"),
-        Some(s) if !s.success() => bail!(
-            "browser pyramid test failed ({s}); screenshots in {}:\n{stderr}\nstation log:\n{}",
-            artifacts.display(),
-            station.log_text()
-        ),
-        Some(_) => {}
-    }
+    .with_context(|| format!("station log:\n{}", station.log_text()))?;
     Ok(())
 }

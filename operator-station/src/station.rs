@@ -800,23 +800,20 @@ impl Station {
             Box::new(move |ch: TileChange, enc: Vec<u8>| {
                 crate::pyramid::mark_changed(&sink_pyramid, &ch.datum_id, ch.index);
                 let store = sink_store.lock().unwrap_or_else(|p| p.into_inner());
-                if history_s > 0 {
+                let history = (history_s > 0).then(|| {
                     let t = now_unix_ms();
-                    let _ = store.send(StoreOp::TileHistory {
-                        datum_id: ch.datum_id.clone(),
-                        tx: ch.index.tx,
-                        ty: ch.index.ty,
+                    crate::store::HistoryStamp {
                         bucket: crate::history::bucket(t, history_s),
                         t_unix_ms: t,
-                        data: enc.clone(),
-                    });
-                }
+                    }
+                });
                 let _ = store.send(StoreOp::Tile {
                     datum_id: ch.datum_id.clone(),
                     tx: ch.index.tx,
                     ty: ch.index.ty,
                     version: ch.version,
                     data: enc,
+                    history,
                 });
                 let _ = sink_events.send(Arc::from(
                     json!({"type": "tile", "datum_id": ch.datum_id, "tx": ch.index.tx, "ty": ch.index.ty, "version": ch.version})

@@ -418,6 +418,7 @@ mod tests {
                 ty: 0,
                 version: 1,
                 data: common::grid::encode_tile(&t),
+                history: None,
             })
             .unwrap();
         }

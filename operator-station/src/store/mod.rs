@@ -116,6 +116,15 @@ pub struct SessionRow {
     pub source: String,
 }
 
+/// When a merged tile version enters the map history.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct HistoryStamp {
+    /// History period ([`crate::history::bucket`]).
+    pub bucket: u64,
+    /// When the merge made this version, Unix ms.
+    pub t_unix_ms: u64,
+}
+
 /// A route summary as listed by the API.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct RouteRow {
@@ -198,7 +207,9 @@ pub enum StoreOp {
         /// Route JSON.
         json: String,
     },
-    /// A merged tile (encoded with `common::grid::encode_tile`, version = station version).
+    /// A merged tile (encoded with `common::grid::encode_tile`, version = station version), and
+    /// with `history` also into the history, where it replaces the tile's version of the same
+    /// period: one payload, written to both tables in one transaction.
     Tile {
         /// Datum.
         datum_id: String,
@@ -210,21 +221,8 @@ pub enum StoreOp {
         version: u64,
         /// Encoded tile.
         data: Vec<u8>,
-    },
-    /// A merged tile into the history: replaces the tile's version of the same `bucket`.
-    TileHistory {
-        /// Datum.
-        datum_id: String,
-        /// Column.
-        tx: i32,
-        /// Row.
-        ty: i32,
-        /// History period ([`crate::history::bucket`]).
-        bucket: u64,
-        /// When the merge made this version, Unix ms.
-        t_unix_ms: u64,
-        /// Encoded tile.
-        data: Vec<u8>,
+        /// The history period and time of this version, when the station keeps a history.
+        history: Option<HistoryStamp>,
     },
     /// Insert or replace a zone (`zones::ZoneRecord` JSON).
     Zone {
@@ -357,26 +355,20 @@ fn apply(tx: &rusqlite::Transaction<'_>, op: &StoreOp) -> rusqlite::Result<()> {
             ty,
             version,
             data,
+            history,
         } => {
             tx.execute(
                 "INSERT OR REPLACE INTO tiles VALUES (?1, ?2, ?3, ?4, ?5)",
                 params![datum_id, x, ty, *version as i64, data],
             )?;
-        }
-        StoreOp::TileHistory {
-            datum_id,
-            tx: x,
-            ty,
-            bucket,
-            t_unix_ms,
-            data,
-        } => {
-            tx.execute(
-                "INSERT INTO tile_history VALUES (?1, ?2, ?3, ?4, ?5, ?6)
-                 ON CONFLICT (datum_id, tx, ty, bucket)
-                 DO UPDATE SET t_unix_ms = excluded.t_unix_ms, data = excluded.data",
-                params![datum_id, x, ty, *bucket as i64, *t_unix_ms as i64, data],
-            )?;
+            if let Some(h) = history {
+                tx.execute(
+                    "INSERT INTO tile_history VALUES (?1, ?2, ?3, ?4, ?5, ?6)
+                     ON CONFLICT (datum_id, tx, ty, bucket)
+                     DO UPDATE SET t_unix_ms = excluded.t_unix_ms, data = excluded.data",
+                    params![datum_id, x, ty, h.bucket as i64, h.t_unix_ms as i64, data],
+                )?;
+            }
         }
         StoreOp::Zone { zone_id, json } => {
             tx.execute(
@@ -772,6 +764,7 @@ mod tests {
             ty: 2,
             version: 3,
             data: vec![1, 2, 3],
+            history: None,
         })
         .unwrap();
         w.finish();
@@ -799,13 +792,16 @@ mod tests {
         let w = StoreWriter::start(&p).unwrap();
         let tx = w.sender();
         let put = |t: i32, bucket: u64, t_ms: u64, byte: u8| {
-            tx.send(StoreOp::TileHistory {
+            tx.send(StoreOp::Tile {
                 datum_id: "d0".into(),
                 tx: t,
                 ty: 0,
-                bucket,
-                t_unix_ms: t_ms,
+                version: 1,
                 data: vec![byte],
+                history: Some(HistoryStamp {
+                    bucket,
+                    t_unix_ms: t_ms,
+                }),
             })
             .unwrap();
         };
