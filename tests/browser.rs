@@ -7,6 +7,8 @@
 //! Skips with a notice only when `/usr/bin/chromium` or `web/node_modules` is missing; CI installs
 //! both, so there a missing piece never hides a failure.
 
+mod browser_support;
+
 use std::fs::File;
 use std::net::TcpStream;
 use std::path::Path;
@@ -14,9 +16,9 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use anyhow::{bail, Context};
+use browser_support::{browser_unavailable, run_ui_script};
 use support::{bin, free_port, workspace_root, KillOnDrop};
 
-const CHROMIUM: &str = "/usr/bin/chromium";
 /// Upper bound for the whole node script; its own steps time out well before this.
 const UI_TEST_LIMIT: Duration = Duration::from_secs(150);
 /// How long the station may take to accept connections.
@@ -38,13 +40,8 @@ fn tail(path: &Path, lines: usize) -> String {
 #[test]
 fn operator_ui_shows_map_and_robot_sends_goal_and_stops() -> anyhow::Result<()> {
     let root = workspace_root();
-    if !Path::new(CHROMIUM).exists() {
-        println!("skipping browser test: {CHROMIUM} is missing (apt-get install chromium)");
-        return Ok(());
-    }
-    let modules = root.join("web/node_modules");
-    if !modules.join("playwright-core").is_dir() || !modules.join("leaflet").is_dir() {
-        println!("skipping browser test: web/node_modules is missing (cd web && npm ci)");
+    if let Some(why) = browser_unavailable(&root) {
+        println!("skipping browser test: {why}");
         return Ok(());
     }
     let artifacts = root.join("artifacts/ui");
@@ -83,43 +80,14 @@ fn operator_ui_shows_map_and_robot_sends_goal_and_stops() -> anyhow::Result<()> 
     }
 
     let url = format!("http://127.0.0.1:{port}/");
-    let ui_out = artifacts.join("ui.stdout.log");
-    let ui_err = artifacts.join("ui.stderr.log");
-    let mut ui = KillOnDrop::spawn(
-        Command::new("node")
-            .arg(root.join("web/tests/ui.mjs"))
-            .arg(&url)
-            .args(["--since-ms", &since_ms.to_string()])
-            .current_dir(&root)
-            .env("TERRANAV_ARTIFACTS", &artifacts)
-            .stdin(Stdio::null())
-            .stdout(File::create(&ui_out)?)
-            .stderr(File::create(&ui_err)?),
+    run_ui_script(
+        &root,
+        "ui.mjs",
+        &[url, "--since-ms".into(), since_ms.to_string()],
+        &artifacts,
+        UI_TEST_LIMIT,
     )
-    .context("run node web/tests/ui.mjs (is node installed?)")?;
-    let started = Instant::now();
-    let status = loop {
-        if let Some(s) = ui.0.try_wait()? {
-            break Some(s);
-        }
-        if started.elapsed() > UI_TEST_LIMIT {
-            break None;
-        }
-        std::thread::sleep(Duration::from_millis(200));
-    };
-    // Printed through the harness so `cargo test` shows it on failure (and with --nocapture).
-    println!("{}", std::fs::read_to_string(&ui_out).unwrap_or_default());
-    let stderr = std::fs::read_to_string(&ui_err).unwrap_or_default();
-    println!("{stderr}");
-    match status {
-        None => bail!("web/tests/ui.mjs did not finish within {UI_TEST_LIMIT:?}"),
-        Some(s) if !s.success() => bail!(
-            "browser test failed ({s}); screenshots in {}:\n{stderr}\ndemo log tail:\n{}",
-            artifacts.display(),
-            tail(&demo_log, 15)
-        ),
-        Some(_) => {}
-    }
+    .with_context(|| format!("demo log tail:\n{}", tail(&demo_log, 15)))?;
     // The demo must still be running: the UI test passing against a dying station proves little.
     assert!(
         demo.0.try_wait()?.is_none(),

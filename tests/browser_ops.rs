@@ -17,6 +17,8 @@
 //! The station is restarted once in the middle: the script asks for it on its stdout
 //! (`@@ctl kill-station`, `@@ctl start-station`) and this harness answers `ok` on its stdin.
 
+mod browser_support;
+
 use std::fs::File;
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
@@ -26,11 +28,11 @@ use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use anyhow::{bail, Context};
+use browser_support::browser_unavailable;
 use common::keys::{self, RobotId, Topic};
 use common::msg::{self, Datum, FixState, MapFrame, Pose, Session};
 use support::{bin, free_port, workspace_root, KillOnDrop};
 
-const CHROMIUM: &str = "/usr/bin/chromium";
 /// Upper bound for the whole script; its own steps time out well before this.
 const SCRIPT_LIMIT: Duration = Duration::from_secs(600);
 /// The scenario's datum (config/scenarios/station-field.toml).
@@ -282,12 +284,8 @@ fn synthetic_basemap(dir: &Path) -> anyhow::Result<usize> {
 #[test]
 fn operator_day_in_the_browser() -> anyhow::Result<()> {
     let root = workspace_root();
-    if !Path::new(CHROMIUM).exists() {
-        println!("skipping the browser test: {CHROMIUM} is missing (apt-get install chromium)");
-        return Ok(());
-    }
-    if !root.join("web/node_modules/playwright-core").is_dir() {
-        println!("skipping the browser test: web/node_modules is missing (cd web && npm ci)");
+    if let Some(why) = browser_unavailable(&root) {
+        println!("skipping the browser test: {why}");
         return Ok(());
     }
     let build = Build::from_env();

@@ -6,155 +6,29 @@
 //! monitor's certificate, through the station or straight to the robot, never reaches the robot,
 //! while the same put with the station's certificate does; a revoked monitor sees nothing more.
 
+mod secure_support;
 mod station_support;
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use common::command::CommandStamper;
 use common::keys::{self, RobotId, Topic};
-use common::msg::{self, GoalCmd, GoalTarget, Pose};
 use common::security::{CertFiles, FleetDir};
 use robot_agent::bus::{BusConfig, BusHandle, Command as BusCommand, ZenohMode, ZenohSettings};
+use secure_support::{pki, pose, secure_ep, TestSession, Tls};
 use serde_json::Value;
 use station_support::*;
 use support::{bin, free_port, KillOnDrop};
 
 const LIMIT: Duration = Duration::from_secs(20);
 
-/// The secure endpoint of a loopback port: the one place the scheme is chosen.
-fn secure_ep(port: u16) -> String {
-    format!("{}/127.0.0.1:{port}", common::security::SECURE_SCHEME)
-}
-
-/// `operator-station pki ARGS`, asserting success; its JSON line.
-fn pki(args: &[&str]) -> Value {
-    let out = Command::new(bin("operator-station"))
-        .arg("pki")
-        .args(args)
-        .output()
-        .expect("run operator-station pki");
-    assert!(
-        out.status.success(),
-        "pki {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
+/// Puts a fresh goal, stamped by `s`, on `robot`'s goal key.
+fn put_goal(s: &TestSession, robot: &RobotId, goal_id: u32) {
+    s.put(
+        &keys::key(robot, Topic::CmdGoal),
+        s.goal_bytes(goal_id, 3.0, 0.0),
     );
-    let text = String::from_utf8_lossy(&out.stdout);
-    serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{e}: {text}"))
-}
-
-fn pose(seq: u32, x_m: f64) -> Pose {
-    Pose {
-        t_unix_ms: now_ms(),
-        seq,
-        x_m,
-        y_m: 0.0,
-        z_m: 0.0,
-        yaw_rad: 0.0,
-        pitch_rad: 0.0,
-        roll_rad: 0.0,
-        v_mps: 0.0,
-        omega_rps: 0.0,
-        fix: Default::default(),
-        lat_lon_deg: None,
-    }
-}
-
-/// A Zenoh session of the test with a fleet certificate, as a client (served by what it connects
-/// to) or a peer (linked straight to each endpoint).
-struct Raw {
-    rt: tokio::runtime::Runtime,
-    session: zenoh::Session,
-}
-
-impl Raw {
-    fn open(connect: &[String], files: &CertFiles, client: bool) -> Raw {
-        Self::try_open(connect, files, client).expect("open zenoh")
-    }
-
-    /// As [`Raw::open`]; a client that cannot link fails to open.
-    fn try_open(connect: &[String], files: &CertFiles, client: bool) -> Result<Raw, String> {
-        let rt = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(1)
-            .enable_all()
-            .build()
-            .expect("runtime");
-        let mut c = operator_station::station::zenoh_config(None, None, &[], connect)
-            .expect("zenoh config");
-        let mut set = |k: &str, v: String| c.insert_json5(k, &v).expect(k);
-        set("listen/endpoints", "[]".into());
-        if client {
-            set("mode", "\"client\"".into());
-        }
-        let path = |p: &Path| serde_json::to_string(&p.display().to_string()).unwrap();
-        set("transport/link/tls/root_ca_certificate", path(&files.ca));
-        set("transport/link/tls/enable_mtls", "true".into());
-        set("transport/link/tls/connect_certificate", path(&files.cert));
-        set("transport/link/tls/connect_private_key", path(&files.key));
-        let session = rt
-            .block_on(async { zenoh::open(c).await })
-            .map_err(|e| e.to_string())?;
-        Ok(Raw { rt, session })
-    }
-
-    /// Links (peers or routers) up after up to `wait`.
-    fn links_after(&self, want: usize, wait: Duration) -> usize {
-        let t0 = Instant::now();
-        loop {
-            let n = self.rt.block_on(async {
-                let info = self.session.info();
-                info.peers_zid().await.count() + info.routers_zid().await.count()
-            });
-            if n >= want || t0.elapsed() > wait {
-                return n;
-            }
-            std::thread::sleep(Duration::from_millis(100));
-        }
-    }
-
-    /// Samples under `terranav/**` received within `d`, calling `poke` every 100 ms meanwhile.
-    fn samples_while(&self, d: Duration, mut poke: impl FnMut()) -> usize {
-        let sub = self
-            .rt
-            .block_on(async { self.session.declare_subscriber("terranav/**").await })
-            .expect("subscribe");
-        let end = Instant::now() + d;
-        while Instant::now() < end {
-            poke();
-            std::thread::sleep(Duration::from_millis(100));
-        }
-        let mut n = 0;
-        while let Ok(Some(_)) = sub.try_recv() {
-            n += 1;
-        }
-        n
-    }
-
-    /// Puts a fresh goal, stamped by this session, on `robot`'s goal key.
-    fn put_goal(&self, robot: &RobotId, goal_id: u32) {
-        let st = CommandStamper::new(operator_station::station::sender_id(&self.session));
-        let g = GoalCmd {
-            goal_id,
-            target: GoalTarget::Map { x_m: 3.0, y_m: 0.0 },
-            tolerance_m: 0.0,
-        };
-        let bytes = msg::encode_cmd(st.next(now_ms()), &g);
-        self.rt.block_on(async {
-            self.session
-                .put(keys::key(robot, Topic::CmdGoal), bytes)
-                .congestion_control(zenoh::qos::CongestionControl::Block)
-                .await
-                .expect("put")
-        });
-    }
-}
-
-impl Drop for Raw {
-    fn drop(&mut self) {
-        let s = self.session.clone();
-        let _ = self.rt.block_on(async { s.close().await });
-    }
 }
 
 /// The goals (by id) that reached the robot bus within `d`; zone sets and the like are skipped.
@@ -288,17 +162,18 @@ fn a_monitor_watches_the_fleet_and_cannot_command_it() {
     // A modified monitor: the monitor's certificate in a session of the test, putting goals on
     // the Zenoh key, as a client of the station and as a peer linked straight to the robot. Its
     // links come up (so what stops it is the rules, not a broken harness) ...
-    let rogue_via_station = Raw::open(&[secure_ep(sp.zenoh)], &monitor_files, true);
+    let rogue_via_station =
+        TestSession::open(&[secure_ep(sp.zenoh)], Tls::member(&monitor_files), true);
     assert_eq!(rogue_via_station.links_after(1, LIMIT), 1, "rogue's link");
-    let rogue_direct = Raw::open(&[secure_ep(r1_port)], &monitor_files, false);
+    let rogue_direct = TestSession::open(&[secure_ep(r1_port)], Tls::member(&monitor_files), false);
     // (Gossip may link it to the station as well: at least the robot's link.)
     assert!(
         rogue_direct.links_after(1, LIMIT) >= 1,
         "rogue's link to r1"
     );
     std::thread::sleep(Duration::from_millis(500));
-    rogue_via_station.put_goal(&r1, 501);
-    rogue_direct.put_goal(&r1, 502);
+    put_goal(&rogue_via_station, &r1, 501);
+    put_goal(&rogue_direct, &r1, 502);
     // ... and neither goal reaches the robot.
     let got = goals_within(&bus, Duration::from_secs(3));
     assert!(
@@ -308,10 +183,10 @@ fn a_monitor_watches_the_fleet_and_cannot_command_it() {
     assert_eq!(bus.counters().commands_refused, 0, "dropped by the rules");
     // The same put with the station's certificate, through the station, does.
     let station_files = fleet.station();
-    let operator = Raw::open(&[secure_ep(sp.zenoh)], &station_files, true);
+    let operator = TestSession::open(&[secure_ep(sp.zenoh)], Tls::member(&station_files), true);
     assert_eq!(operator.links_after(1, LIMIT), 1, "operator's link");
     std::thread::sleep(Duration::from_millis(500));
-    operator.put_goal(&r1, 503);
+    put_goal(&operator, &r1, 503);
     let got = goals_within(&bus, Duration::from_secs(5));
     assert_eq!(got, vec![503], "the station certificate's goal");
 
@@ -350,12 +225,14 @@ fn a_monitor_watches_the_fleet_and_cannot_command_it() {
     );
     // The revoked certificate (a peer here: a client that cannot link fails to open) is sent
     // nothing, whether or not the station lets its link come up.
-    let revoked = Raw::open(&[secure_ep(sp.zenoh)], &monitor_files, false);
+    let revoked = TestSession::open(&[secure_ep(sp.zenoh)], Tls::member(&monitor_files), false);
     let links = revoked.links_after(1, Duration::from_secs(3));
-    let heard = revoked.samples_while(Duration::from_secs(2), || {
-        seq += 1;
-        bus.publish_pose(&pose(seq, 6.0));
-    });
+    let heard = revoked
+        .samples_while("terranav/**", Duration::from_secs(2), || {
+            seq += 1;
+            bus.publish_pose(&pose(seq, 6.0));
+        })
+        .len();
     assert_eq!(heard, 0, "samples sent to a revoked monitor certificate");
     println!("revoked monitor certificate: {links} link(s), {heard} samples");
     println!(
@@ -389,12 +266,9 @@ fn a_router_lets_a_monitor_watch_and_not_command() {
     .expect("start the router");
     // The monitor's certificate, a client of the router (retried until the router listens).
     let t0 = Instant::now();
+    let monitor_files = CertFiles::monitor(&fleet.monitor_dir("m1"));
     let monitor = loop {
-        match Raw::try_open(
-            &[secure_ep(rp)],
-            &CertFiles::monitor(&fleet.monitor_dir("m1")),
-            true,
-        ) {
+        match TestSession::try_open(&[secure_ep(rp)], Tls::member(&monitor_files), true) {
             Ok(r) => break r,
             Err(e) if t0.elapsed() > LIMIT => panic!("the router never took the monitor: {e}"),
             Err(_) => std::thread::sleep(Duration::from_millis(200)),
@@ -412,24 +286,26 @@ fn a_router_lets_a_monitor_watch_and_not_command() {
 
     // The monitor reads the robot's poses ...
     let mut seq = 0;
-    let heard = monitor.samples_while(Duration::from_secs(2), || {
-        seq += 1;
-        bus.publish_pose(&pose(seq, 1.0));
-    });
+    let heard = monitor
+        .samples_while("terranav/**", Duration::from_secs(2), || {
+            seq += 1;
+            bus.publish_pose(&pose(seq, 1.0));
+        })
+        .len();
     assert!(
         heard >= 5,
         "the monitor heard {heard} poses through the router"
     );
     // ... and its goal is dropped at the router, while the station certificate's passes.
-    monitor.put_goal(&r1, 601);
+    put_goal(&monitor, &r1, 601);
     let got = goals_within(&bus, Duration::from_secs(3));
     assert!(
         got.is_empty(),
         "goals from the monitor's certificate: {got:?}"
     );
-    let operator = Raw::open(&[secure_ep(rp)], &fleet.station(), true);
+    let operator = TestSession::open(&[secure_ep(rp)], Tls::member(&fleet.station()), true);
     std::thread::sleep(Duration::from_millis(500));
-    operator.put_goal(&r1, 602);
+    put_goal(&operator, &r1, 602);
     assert_eq!(goals_within(&bus, Duration::from_secs(5)), vec![602]);
     println!(
         "router test done in {:.1} s ({heard} poses heard by the monitor in 2 s)",

@@ -10,6 +10,7 @@
 //! with their own namespaces; numbers are printed, and only completion limits are asserted.
 
 mod netns_support;
+mod secure_support;
 mod station_support;
 
 use std::collections::BTreeMap;

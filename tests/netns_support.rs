@@ -18,6 +18,7 @@ use std::time::{Duration, Instant};
 use serde_json::Value;
 use support::{bin, workspace_root, KillOnDrop};
 
+use crate::secure_support::{pki as pki_cmd, PosePump};
 use crate::station_support::{strip_ansi, tail};
 
 /// Zenoh port of the router and the stations (each namespace has its own ports).
@@ -62,20 +63,6 @@ pub fn namespaces_available() -> bool {
         println!("skipping: network namespaces cannot be made here ({e})");
     }
     r.is_ok()
-}
-
-/// `operator-station pki ARGS`, asserting success.
-fn pki_cmd(args: &[String]) {
-    let out = Command::new(bin("operator-station"))
-        .arg("pki")
-        .args(args)
-        .output()
-        .expect("run operator-station pki");
-    assert!(
-        out.status.success(),
-        "pki {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
 }
 
 /// A network namespace, deleted on drop.
@@ -334,15 +321,9 @@ impl Site {
         for i in 0..stations {
             init.extend(["--host".into(), router_for_station(i)]);
         }
-        pki_cmd(&init);
+        pki_cmd(&init.iter().map(String::as_str).collect::<Vec<_>>());
         for r in robots {
-            pki_cmd(&[
-                "issue".into(),
-                "--robot".into(),
-                r.to_string(),
-                "--dir".into(),
-                pki.display().to_string(),
-            ]);
+            pki_cmd(&["issue", "--robot", r, "--dir", &pki.display().to_string()]);
         }
         Site {
             dir: dir.to_path_buf(),
@@ -618,26 +599,18 @@ pub fn last_truth(path: &Path) -> Option<(f64, f64)> {
     (v.len() >= 3).then(|| (v[1], v[2]))
 }
 
-/// Poses of a robot `id` stamped with the wall clock at 10 Hz, published by the real robot bus
-/// (`robot_agent::bus`, TLS with the robot's certificate, client of the router) from the robot's
-/// namespace until dropped: the simulated robot stamps its poses with simulated time, which
-/// falls behind the wall clock on a loaded machine, so its latency at the station is not the
-/// link's alone. This one's is.
-pub struct PoseProbe {
-    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
-    thread: Option<std::thread::JoinHandle<()>>,
-}
-
 impl Site {
-    /// Starts a [`PoseProbe`] for robot `id` (which needs a certificate in the site's PKI). Its
-    /// Zenoh session must be the first of this test process: Zenoh's runtime threads are made
-    /// by the thread that first opens a session, and inherit its namespace.
-    pub fn pose_probe(&self, id: &str) -> PoseProbe {
-        use std::sync::atomic::{AtomicBool, Ordering};
-        let stop = std::sync::Arc::new(AtomicBool::new(false));
-        let (s, ns, id) = (stop.clone(), self.robot_ns.clone(), id.to_string());
+    /// Poses of robot `id` (which needs a certificate in the site's PKI) stamped with the wall
+    /// clock at 10 Hz, published by the real robot bus (`robot_agent::bus`, secure, client of the
+    /// router) from the robot's namespace until dropped: the simulated robot stamps its poses with
+    /// simulated time, which falls behind the wall clock on a loaded machine, so its latency at
+    /// the station is not the link's alone. This one's is. Its Zenoh session must be the first of
+    /// this test process: Zenoh's runtime threads are made by the thread that first opens a
+    /// session, and inherit its namespace.
+    pub fn pose_probe(&self, id: &str) -> PosePump {
+        let (ns, id) = (self.robot_ns.clone(), id.to_string());
         let files = common::security::CertFiles::robot(&self.pki.join("robots").join(&id));
-        let thread = std::thread::spawn(move || {
+        PosePump::start(0.0, move || {
             let file = std::fs::File::open(format!("/run/netns/{ns}")).expect("namespace");
             nix::sched::setns(file.as_raw_fd(), nix::sched::CloneFlags::CLONE_NEWNET)
                 .expect("enter the robot namespace");
@@ -651,38 +624,7 @@ impl Site {
                 ..Default::default()
             };
             let bus = robot_agent::bus::BusHandle::start(cfg).expect("probe bus");
-            let mut seq = 0;
-            while !s.load(Ordering::Relaxed) {
-                bus.publish_pose(&common::msg::Pose {
-                    t_unix_ms: crate::station_support::now_ms(),
-                    seq,
-                    x_m: 0.0,
-                    y_m: 0.0,
-                    z_m: 0.0,
-                    yaw_rad: 0.0,
-                    pitch_rad: 0.0,
-                    roll_rad: 0.0,
-                    v_mps: 0.0,
-                    omega_rps: 0.0,
-                    fix: Default::default(),
-                    lat_lon_deg: None,
-                });
-                seq += 1;
-                std::thread::sleep(Duration::from_millis(100));
-            }
-        });
-        PoseProbe {
-            stop,
-            thread: Some(thread),
-        }
-    }
-}
-
-impl Drop for PoseProbe {
-    fn drop(&mut self) {
-        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-        }
+            move |p: &common::msg::Pose| bus.publish_pose(p)
+        })
     }
 }

@@ -6,19 +6,20 @@
 //! also shown to get its link up where it should, so what stops it is the rule under test and not
 //! a broken harness.
 
+mod secure_support;
 mod station_support;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use common::command::CommandStamper;
 use common::keys::{self, RobotId, Topic};
-use common::msg::{self, GoalCmd, GoalTarget, Pose};
+use common::msg::{self, Pose};
 use common::security::{CertFiles, FleetDir};
 use robot_agent::bus::{BusConfig, BusHandle, ZenohSettings};
+use secure_support::{pki, pose, secure_ep, PosePump, TestSession, Tls};
 use serde_json::Value;
 use station_support::*;
 use support::{bin, free_port, workspace_root};
@@ -26,22 +27,6 @@ use support::{bin, free_port, workspace_root};
 const LIMIT: Duration = Duration::from_secs(10);
 const ROBOT_UP: Duration = Duration::from_secs(40);
 const DRIVE: Duration = Duration::from_secs(120);
-
-/// `operator-station pki ARGS`, asserting success; its JSON line.
-fn pki(args: &[&str]) -> Value {
-    let out = Command::new(bin("operator-station"))
-        .arg("pki")
-        .args(args)
-        .output()
-        .expect("run operator-station pki");
-    assert!(
-        out.status.success(),
-        "pki {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let text = String::from_utf8_lossy(&out.stdout);
-    serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{e}: {text}"))
-}
 
 /// A fleet in `dir/name` with certificates for `robots`.
 fn fleet(dir: &Path, name: &str, robots: &[&str]) -> PathBuf {
@@ -52,11 +37,6 @@ fn fleet(dir: &Path, name: &str, robots: &[&str]) -> PathBuf {
         pki(&["issue", "--robot", r, "--dir", ps]);
     }
     p
-}
-
-/// A secure loopback endpoint, in the scheme the product defaults to.
-fn secure_ep(port: u16) -> String {
-    format!("{}/127.0.0.1:{port}", common::security::SECURE_SCHEME)
 }
 
 /// A secure station on `ports.zenoh`.
@@ -89,155 +69,6 @@ fn secure_bus(id: &str, files: CertFiles, connect: &str, listen: Option<&str>) -
 /// The bus is not `Sync` (its command receiver), so the pose thread and the test share it locked.
 fn lock(bus: &Mutex<BusHandle>) -> MutexGuard<'_, BusHandle> {
     bus.lock().unwrap_or_else(|p| p.into_inner())
-}
-
-/// Publishes a pose of the bus's robot at 10 Hz until dropped.
-struct PosePump {
-    stop: Arc<AtomicBool>,
-    thread: Option<std::thread::JoinHandle<()>>,
-}
-
-impl PosePump {
-    fn start(bus: Arc<Mutex<BusHandle>>) -> Self {
-        let stop = Arc::new(AtomicBool::new(false));
-        let s = stop.clone();
-        let thread = std::thread::spawn(move || {
-            let mut seq = 0;
-            while !s.load(Ordering::Relaxed) {
-                lock(&bus).publish_pose(&pose(seq, 1.0));
-                seq += 1;
-                std::thread::sleep(Duration::from_millis(100));
-            }
-        });
-        Self {
-            stop,
-            thread: Some(thread),
-        }
-    }
-}
-
-impl Drop for PosePump {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Relaxed);
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
-        }
-    }
-}
-
-fn pose(seq: u32, x_m: f64) -> Pose {
-    Pose {
-        t_unix_ms: now_ms(),
-        seq,
-        x_m,
-        y_m: 0.0,
-        z_m: 0.0,
-        yaw_rad: 0.0,
-        pitch_rad: 0.0,
-        roll_rad: 0.0,
-        v_mps: 0.0,
-        omega_rps: 0.0,
-        fix: Default::default(),
-        lat_lon_deg: None,
-    }
-}
-
-/// A Zenoh session of the test: plain, or TLS trusting `ca` with an optional client certificate.
-struct Client {
-    rt: tokio::runtime::Runtime,
-    session: zenoh::Session,
-}
-
-impl Client {
-    fn open(connect: &[String], ca: Option<&Path>, identity: Option<(&Path, &Path)>) -> Client {
-        let rt = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(1)
-            .enable_all()
-            .build()
-            .expect("runtime");
-        let mut c = operator_station::station::zenoh_config(None, None, &[], connect)
-            .expect("zenoh config");
-        let mut set = |k: &str, v: String| c.insert_json5(k, &v).expect(k);
-        set("listen/endpoints", "[]".into());
-        let path = |p: &Path| serde_json::to_string(&p.display().to_string()).unwrap();
-        if let Some(ca) = ca {
-            set("transport/link/tls/root_ca_certificate", path(ca));
-        }
-        match identity {
-            Some((cert, key)) => {
-                set("transport/link/tls/enable_mtls", "true".into());
-                set("transport/link/tls/connect_certificate", path(cert));
-                set("transport/link/tls/connect_private_key", path(key));
-            }
-            None => set("transport/link/tls/enable_mtls", "false".into()),
-        }
-        let session = rt
-            .block_on(async { zenoh::open(c).await })
-            .expect("open zenoh");
-        Client { rt, session }
-    }
-
-    /// Peers linked after up to `wait` (the session keeps retrying its endpoints).
-    fn peers_after(&self, want: usize, wait: Duration) -> usize {
-        let t0 = Instant::now();
-        loop {
-            let n = self
-                .rt
-                .block_on(async { self.session.info().peers_zid().await.count() });
-            if n >= want || t0.elapsed() > wait {
-                return n;
-            }
-            std::thread::sleep(Duration::from_millis(100));
-        }
-    }
-
-    /// Samples received on `key` within `d`.
-    fn samples(&self, key: &str, d: Duration) -> Vec<(String, Vec<u8>)> {
-        self.rt.block_on(async {
-            let sub = self
-                .session
-                .declare_subscriber(key.to_string())
-                .await
-                .expect("subscribe");
-            let mut out = Vec::new();
-            let end = tokio::time::Instant::now() + d;
-            while let Ok(Ok(s)) = tokio::time::timeout_at(end, sub.recv_async()).await {
-                out.push((
-                    s.key_expr().as_str().to_string(),
-                    s.payload().to_bytes().to_vec(),
-                ));
-            }
-            out
-        })
-    }
-
-    fn put(&self, key: &str, bytes: Vec<u8>) {
-        self.rt.block_on(async {
-            self.session
-                .put(key.to_string(), bytes)
-                .congestion_control(zenoh::qos::CongestionControl::Block)
-                .await
-                .expect("put")
-        });
-    }
-
-    /// A fresh goal command to `robot`, stamped by this client.
-    fn goal_bytes(&self, x: f64, y: f64) -> Vec<u8> {
-        let st = CommandStamper::new(operator_station::station::sender_id(&self.session));
-        let g = GoalCmd {
-            goal_id: 77,
-            target: GoalTarget::Map { x_m: x, y_m: y },
-            tolerance_m: 0.0,
-        };
-        msg::encode_cmd(st.next(now_ms()), &g)
-    }
-}
-
-impl Drop for Client {
-    fn drop(&mut self) {
-        let s = self.session.clone();
-        let _ = self.rt.block_on(async { s.close().await });
-    }
 }
 
 fn robot_files(pki_dir: &Path, id: &str) -> CertFiles {
@@ -282,12 +113,12 @@ fn authorised_station_commands_a_secure_robot_and_a_replay_is_refused() {
     // An authorised session (the station's certificate) linked to the station and to the robot
     // captures the operator's goal as it goes out.
     let station_files = FleetDir::new(&pki_dir).station();
-    let eyes = Client::open(
+    let eyes = TestSession::open(
         &[secure_ep(ports.zenoh), secure_ep(r1_port)],
-        Some(&station_files.ca),
-        Some((&station_files.cert, &station_files.key)),
+        Tls::member(&station_files),
+        false,
     );
-    assert_eq!(eyes.peers_after(2, LIMIT), 2, "station-certificate links");
+    assert_eq!(eyes.links_after(2, LIMIT), 2, "station-certificate links");
     let rid = RobotId::new("r1").unwrap();
     let capture = std::thread::scope(|s| {
         let h = s.spawn(|| eyes.samples(&keys::key(&rid, Topic::CmdGoal), Duration::from_secs(4)));
@@ -378,15 +209,23 @@ fn strangers_cannot_connect_and_another_robot_can_neither_command_nor_read_nor_i
         &secure_ep(ports.zenoh),
         Some(&secure_ep(r1_port)),
     )));
-    let _pump = PosePump::start(bus.clone());
+    let pump_bus = bus.clone();
+    let _pump = PosePump::start(1.0, move || move |p: &Pose| lock(&pump_bus).publish_pose(p));
     assert!(wait_for(LIMIT, || online(ports.http, "r1")), "r1 online");
     let targets = [secure_ep(ports.zenoh), secure_ep(r1_port)];
     let ca = FleetDir::new(&pki_dir).ca_cert();
 
     // No certificate at all, over TLS and over plain TCP to the TLS ports: no link.
-    let none = Client::open(&targets, Some(&ca), None);
+    let none = TestSession::open(
+        &targets,
+        Tls {
+            ca: Some(&ca),
+            identity: None,
+        },
+        false,
+    );
     assert_eq!(
-        none.peers_after(1, Duration::from_secs(3)),
+        none.links_after(1, Duration::from_secs(3)),
         0,
         "no-cert TLS client linked"
     );
@@ -397,9 +236,9 @@ fn strangers_cannot_connect_and_another_robot_can_neither_command_nor_read_nor_i
         .iter()
         .map(|p| format!("tcp/127.0.0.1:{p}"))
         .collect();
-    let plain = Client::open(&plain, None, None);
+    let plain = TestSession::open(&plain, Tls::default(), false);
     assert_eq!(
-        plain.peers_after(1, Duration::from_secs(2)),
+        plain.links_after(1, Duration::from_secs(2)),
         0,
         "plain TCP linked"
     );
@@ -407,22 +246,29 @@ fn strangers_cannot_connect_and_another_robot_can_neither_command_nor_read_nor_i
     // The station's name, but from another fleet's CA: no link (the CA certificate is public,
     // so the intruder trusts ours; its own certificate does not chain to it).
     let foreign = FleetDir::new(&other).station();
-    let forged = Client::open(&targets, Some(&ca), Some((&foreign.cert, &foreign.key)));
+    let forged = TestSession::open(
+        &targets,
+        Tls {
+            ca: Some(&ca),
+            identity: Some((&foreign.cert, &foreign.key)),
+        },
+        false,
+    );
     assert_eq!(
-        forged.peers_after(1, Duration::from_secs(3)),
+        forged.links_after(1, Duration::from_secs(3)),
         0,
         "foreign CA linked"
     );
     forged.put(
         &keys::key(&RobotId::new("r1").unwrap(), Topic::CmdGoal),
-        forged.goal_bytes(3.0, 0.0),
+        forged.goal_bytes(77, 3.0, 0.0),
     );
 
     // Robot r2's own certificate: its links come up (it is of this fleet) ...
     let r2 = robot_files(&pki_dir, "r2");
-    let thief = Client::open(&targets, Some(&r2.ca), Some((&r2.cert, &r2.key)));
+    let thief = TestSession::open(&targets, Tls::member(&r2), false);
     assert_eq!(
-        thief.peers_after(2, LIMIT),
+        thief.links_after(2, LIMIT),
         2,
         "r2's links to station and r1"
     );
@@ -436,7 +282,10 @@ fn strangers_cannot_connect_and_another_robot_can_neither_command_nor_read_nor_i
     );
     // cannot command r1 (straight to r1's listener, and via the station),
     let r1 = RobotId::new("r1").unwrap();
-    thief.put(&keys::key(&r1, Topic::CmdGoal), thief.goal_bytes(3.0, 0.0));
+    thief.put(
+        &keys::key(&r1, Topic::CmdGoal),
+        thief.goal_bytes(77, 3.0, 0.0),
+    );
     let stop = msg::encode_cmd(
         CommandStamper::new(99).next(now_ms()),
         &msg::StopCmd::default(),

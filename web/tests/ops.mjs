@@ -15,6 +15,7 @@ import { tmpdir } from "node:os";
 import { join, resolve, dirname } from "node:path";
 import { fileURLToPath } from "node:url";
 import { createInterface } from "node:readline";
+import { StepFailed, logger, screenshots, sleep, until } from "./harness.mjs";
 
 const here = dirname(fileURLToPath(import.meta.url));
 const CHROMIUM = process.env.TERRANAV_CHROMIUM || "/usr/bin/chromium";
@@ -32,25 +33,7 @@ if (!url) {
 }
 const base = new URL(url);
 const t0 = Date.now();
-const log = (...a) => console.log(`[ops +${((Date.now() - t0) / 1000).toFixed(1)}s]`, ...a);
-const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
-class StepFailed extends Error {}
-
-async function until(what, ms, fn, everyMs = 200) {
-  const end = Date.now() + ms;
-  let last;
-  for (;;) {
-    try {
-      last = await fn();
-      if (last) return last;
-    } catch (e) {
-      if (e instanceof StepFailed) throw e;
-      last = e.message;
-    }
-    if (Date.now() > end) throw new StepFailed(`${what} (waited ${(ms / 1000).toFixed(1)} s; last: ${JSON.stringify(last)})`);
-    await sleep(everyMs);
-  }
-}
+const log = logger("ops", t0);
 
 // ---- the harness's control channel ----
 const stdinLines = [];
@@ -66,12 +49,8 @@ async function ctl(what) {
 
 // ---- helpers ----
 let page;
-let shotN = 0;
-async function shot(name, path) {
-  const file = path || join(ARTIFACTS, `${String(++shotN).padStart(2, "0")}-${name}.png`);
-  await page.screenshot({ path: file });
-  log("screenshot", file);
-}
+const shootPage = screenshots(ARTIFACTS, log);
+const shot = (name, path) => shootPage(page, name, path);
 async function rest(method, path, body) {
   const r = await page.request.fetch(new URL(path, base).href, { method, data: body === undefined ? undefined : JSON.stringify(body), headers: { "Content-Type": "application/json" } });
   const text = await r.text();

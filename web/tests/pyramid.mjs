@@ -15,6 +15,7 @@ import { mkdirSync, mkdtempSync, rmSync } from "node:fs";
 import { tmpdir } from "node:os";
 import { dirname, join, resolve } from "node:path";
 import { fileURLToPath } from "node:url";
+import { StepFailed, logger, screenshots, sleep, until as untilHolds } from "./harness.mjs";
 
 const here = dirname(fileURLToPath(import.meta.url));
 const CHROMIUM = process.env.TERRANAV_CHROMIUM || "/usr/bin/chromium";
@@ -28,31 +29,10 @@ if (!url) {
   process.exit(2);
 }
 const t0 = Date.now();
-const log = (...a) => console.log(`[pyramid +${((Date.now() - t0) / 1000).toFixed(1)}s]`, ...a);
-const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
-class StepFailed extends Error {}
-
-async function until(what, ms, fn, everyMs = 100) {
-  const end = Date.now() + ms;
-  let last;
-  for (;;) {
-    try {
-      last = await fn();
-      if (last) return last;
-    } catch (e) {
-      last = e.message;
-    }
-    if (Date.now() > end) throw new StepFailed(`${what} (waited ${(ms / 1000).toFixed(1)} s; last: ${JSON.stringify(last)})`);
-    await sleep(everyMs);
-  }
-}
-
-let shotN = 0;
-async function shot(page, name) {
-  const file = join(ARTIFACTS, `${String(++shotN).padStart(2, "0")}-${name}.png`);
-  await page.screenshot({ path: file });
-  log("screenshot", file);
-}
+const log = logger("pyramid", t0);
+const shot = screenshots(ARTIFACTS, log);
+// Finer polling than the default: the first full view is timed through it.
+const until = (what, ms, fn, everyMs = 100) => untilHolds(what, ms, fn, everyMs);
 
 /** Requests seen by the page: {url, at (epoch ms), status}. */
 const requests = [];

@@ -14,6 +14,7 @@ import { mkdirSync, mkdtempSync, rmSync } from "node:fs";
 import { tmpdir } from "node:os";
 import { dirname, join, resolve } from "node:path";
 import { fileURLToPath } from "node:url";
+import { StepFailed, logger, screenshots, sleep, until } from "./harness.mjs";
 
 const here = dirname(fileURLToPath(import.meta.url));
 const CHROMIUM = process.env.TERRANAV_CHROMIUM || "/usr/bin/chromium";
@@ -31,32 +32,8 @@ if (!url || !Number.isFinite(t0)) {
 const base = new URL(url);
 const token = base.searchParams.get("token");
 
-class StepFailed extends Error {}
-const log = (...a) => console.log(`[ui +${((Date.now() - t0) / 1000).toFixed(1)}s]`, ...a);
-const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
-
-/** Polls `fn` until it returns a truthy value or `ms` passes; then fails the step with `what`. */
-async function until(what, ms, fn, everyMs = 200) {
-  const end = Date.now() + ms;
-  let last;
-  for (;;) {
-    try {
-      last = await fn();
-      if (last) return last;
-    } catch (e) {
-      last = e.message;
-    }
-    if (Date.now() > end) throw new StepFailed(`${what} (waited ${(ms / 1000).toFixed(1)} s; last: ${JSON.stringify(last)})`);
-    await sleep(everyMs);
-  }
-}
-
-let shotN = 0;
-async function shot(page, name) {
-  const file = join(ARTIFACTS, `${String(++shotN).padStart(2, "0")}-${name}.png`);
-  await page.screenshot({ path: file });
-  log("screenshot", file);
-}
+const log = logger("ui", t0);
+const shot = screenshots(ARTIFACTS, log);
 
 async function robotsRest(page) {
   const headers = token ? { Authorization: `Bearer ${token}` } : {};
