@@ -102,6 +102,7 @@ impl Agent {
             deadman_s: cfg.deadman_s,
             safety_scan_timeout_s: cfg.safety_scan_timeout_s,
             safety_stop_block_s: cfg.repeat.safety_stop_block_s,
+            brake_mps2: cfg.profile.max_accel_mps2,
         });
         Ok(Self {
             localiser: Localiser::new(&cfg),

@@ -4,14 +4,20 @@
 //! Two pure-pursuit followers (docs/algorithms.md §6): one for planned paths, and the same
 //! controller tuned for taught routes (shorter look-ahead, earlier turn in place). Every command
 //! passes the gate: while the last sweep puts something in the stop zone, or the last sweep is
-//! older than `safety_scan_timeout_s` (a stale sweep cannot vouch for the space ahead), forward
-//! motion is zeroed; turning in place stays allowed unless something stands where the body's
+//! older than its trust time (a stale sweep cannot vouch for the space ahead), forward motion is
+//! zeroed. The trust time is `safety_scan_timeout_s`, or 1.5 sweep periods for a LiDAR that spins
+//! slower than that allows (a VLP-16 at 2 Hz); the speed is capped so that what the robot drives
+//! between two sweeps plus its braking distance stays within the stop zone's depth
+//! (`v P + v^2 / 2a <= stop_ahead_m`; at 10 Hz the cap lies above any Husky speed); turning in place stays allowed unless something stands where the body's
 //! corners would sweep. A stop that holds for `safety_stop_block_s` is remembered with where it
 //! stands, so the planner can treat it as a blockage
 //! ([`crate::terrain::layers::stamp_blocked_disc`]).
 
 use crate::localiser::PoseMap;
 use common::geom::Pose2;
+
+/// Sweep intervals longer than this are outages, not the sensor's period, seconds.
+const SWEEP_PERIOD_MAX_S: f64 = 2.0;
 
 /// A velocity command for the base.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -61,6 +67,9 @@ pub struct DriverConfig {
     pub safety_scan_timeout_s: f64,
     /// A safety stop lasting this long is a blockage, seconds.
     pub safety_stop_block_s: f64,
+    /// How hard the base brakes when commanded to stop (the robot profile's `max_accel_mps2`),
+    /// m/s^2.
+    pub brake_mps2: f64,
 }
 
 /// See the module docs.
@@ -71,6 +80,8 @@ pub struct Driver {
     speed_limit_mps: f64,
     safety: control::SafetyVerdict,
     safety_t_s: f64,
+    /// The LiDAR's sweep period as observed (running mean of the intervals), seconds.
+    sweep_period_s: Option<f64>,
     /// Since when (sweep time) the safety stop has held without a break, and where (map frame)
     /// the stop-zone point nearest the body stood in the last sweep.
     lasting_stop: Option<(f64, (f64, f64))>,
@@ -96,6 +107,7 @@ impl Driver {
             speed_limit_mps: cfg.control.v_max_mps,
             safety: control::SafetyVerdict::default(),
             safety_t_s: f64::NEG_INFINITY,
+            sweep_period_s: None,
             lasting_stop: None,
             depth_safety: None,
             last_cmd: Cmd::default(),
@@ -113,6 +125,14 @@ impl Driver {
         pose: &PoseMap,
     ) {
         self.safety = control::safety::check(&self.cfg.control.safety, points_base);
+        let dt = t_s - self.safety_t_s;
+        // Gaps (a sensor outage, a restart) are not the sensor's period.
+        if dt > 0.0 && dt < SWEEP_PERIOD_MAX_S {
+            self.sweep_period_s = Some(match self.sweep_period_s {
+                Some(p) => p + 0.2 * (dt - p),
+                None => dt,
+            });
+        }
         self.safety_t_s = t_s;
         self.lasting_stop = match (self.safety.stop, self.safety.zone_nearest_m) {
             (true, Some((x, y))) => {
@@ -142,7 +162,16 @@ impl Driver {
         let depth_stop = self
             .depth_safety
             .is_some_and(|(v, t)| v.stop && t_s - t <= self.cfg.safety_scan_timeout_s);
-        t_s - self.safety_t_s > self.cfg.safety_scan_timeout_s || self.safety.stop || depth_stop
+        t_s - self.safety_t_s > self.sweep_trust_s() || self.safety.stop || depth_stop
+    }
+
+    /// How long one sweep vouches for the space ahead: `safety_scan_timeout_s`, or 1.5 observed
+    /// sweep periods when the LiDAR spins slower than that allows, seconds.
+    pub fn sweep_trust_s(&self) -> f64 {
+        self.sweep_period_s
+            .map_or(self.cfg.safety_scan_timeout_s, |p| {
+                self.cfg.safety_scan_timeout_s.max(1.5 * p)
+            })
     }
 
     /// The last sweep's verdict.
@@ -173,10 +202,26 @@ impl Driver {
         self.zone_cap_mps = cap_mps.filter(|c| c.is_finite() && *c >= 0.0);
     }
 
-    /// The speed the driver allows now: the operator's limit, under a slow zone's cap, m/s.
+    /// The speed the driver allows now: the operator's limit, under a slow zone's cap and under
+    /// the LiDAR's ([`Driver::sensor_cap_mps`]), m/s.
     pub fn limit_now_mps(&self) -> f64 {
         self.zone_cap_mps
             .map_or(self.speed_limit_mps, |c| c.min(self.speed_limit_mps))
+            .min(self.sensor_cap_mps())
+    }
+
+    /// The fastest the robot may drive on the LiDAR's sweeps: what it drives between two sweeps
+    /// (period `P`) plus its braking distance stays within the stop zone's depth `d`:
+    /// `v P + v^2 / 2a = d`, so `v = sqrt((aP)^2 + 2ad) - aP`, m/s.
+    pub fn sensor_cap_mps(&self) -> f64 {
+        let (Some(p), a) = (self.sweep_period_s, self.cfg.brake_mps2) else {
+            return f64::INFINITY;
+        };
+        if a.is_nan() || a <= 0.0 {
+            return f64::INFINITY;
+        }
+        let d = self.cfg.control.safety.stop_ahead_m.max(0.0);
+        ((a * p).powi(2) + 2.0 * a * d).sqrt() - a * p
     }
 
     /// The operator's drive, while the deadman is held and fresh; forward motion gated.
@@ -262,6 +307,7 @@ mod tests {
             deadman_s: 0.3,
             safety_scan_timeout_s: 0.35,
             safety_stop_block_s: 3.0,
+            brake_mps2: 1.0,
         })
     }
 
@@ -279,6 +325,40 @@ mod tests {
         let path = [(0.0, 0.0), (5.0, 0.0)];
         let c = d.follow(Tracker::Path, &Pose2::default(), &path, true, true);
         assert_eq!(c.v_mps, 0.0);
+    }
+
+    #[test]
+    fn a_slow_lidar_is_trusted_for_its_period_at_a_speed_that_keeps_the_distance() {
+        let mut d = driver();
+        let v_max = d.limit_now_mps();
+        // 10 Hz: the configured trust and full speed.
+        for i in 0..20 {
+            d.on_sweep(i as f64 * 0.1, std::iter::empty(), &at_origin());
+        }
+        assert_eq!(d.sweep_trust_s(), 0.35);
+        assert_eq!(d.limit_now_mps(), v_max, "10 Hz does not bind");
+        // 2 Hz (a VLP-16 spun slowly): each sweep vouches until the next one is due ...
+        let mut d = driver();
+        for i in 0..20 {
+            d.on_sweep(i as f64 * 0.5, std::iter::empty(), &at_origin());
+        }
+        assert!((d.sweep_trust_s() - 0.75).abs() < 1e-9);
+        assert!(
+            !d.stop_ahead(9.5 + 0.6),
+            "a 2 Hz sweep 0.6 s old is the newest there is"
+        );
+        assert!(d.stop_ahead(9.5 + 0.8), "a missed 2 Hz sweep is stale");
+        // ... and between two sweeps plus braking the robot stays within the stop zone's depth.
+        let cap = d.limit_now_mps();
+        let depth = control::Config::default().safety.stop_ahead_m;
+        assert!(cap < v_max, "2 Hz binds: {cap}");
+        assert!(
+            (cap * 0.5 + cap * cap / 2.0 - depth).abs() < 1e-9,
+            "cap {cap}"
+        );
+        // An outage is not a period.
+        d.on_sweep(30.0, std::iter::empty(), &at_origin());
+        assert!((d.sweep_trust_s() - 0.75).abs() < 1e-9);
     }
 
     #[test]

@@ -26,6 +26,8 @@ pub mod world;
 pub use labels::{LabelParams, TruthCell, TruthGrid};
 pub use plant::{Collision, CollisionKind};
 pub use scenario::{Scenario, ScenarioError};
-pub use sensors::{DepthConfig, GnssConfig, GnssFix, ImuConfig, LidarConfig, OdomConfig};
+pub use sensors::{
+    DepthConfig, GnssConfig, GnssFix, ImuConfig, LidarConfig, LidarModel, OdomConfig,
+};
 pub use simulation::{SimConfig, Simulation, StepOutput};
 pub use world::{Hit, HitKind, Obstacle, WalkerState, World};

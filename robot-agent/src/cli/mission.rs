@@ -68,9 +68,20 @@ pub struct MissionArgs {
     /// path (truth; for teach and repeat the return) and the goal into this PNG at the end.
     #[arg(long, value_name = "FILE")]
     pub png: Option<PathBuf>,
+    /// The simulated LiDAR, `MODEL[@HZ]`: `vlp16` (the default, 10 Hz), `hdl32e`, `os1-64`;
+    /// e.g. `vlp16@2` spins a VLP-16 at 2 Hz. The agent is not told: it adapts to the data.
+    #[arg(long, value_name = "MODEL[@HZ]", default_value = "vlp16")]
+    pub lidar: String,
     /// Record the run to MCAP (headless missions and the live robot).
     #[command(flatten)]
     pub mcap: crate::record::McapArgs,
+}
+
+impl MissionArgs {
+    /// The simulated LiDAR `--lidar` asks for.
+    pub fn lidar_config(&self) -> anyhow::Result<sim::LidarConfig> {
+        sim::LidarConfig::parse_spec(&self.lidar).map_err(|e| anyhow::anyhow!("--lidar: {e}"))
+    }
 }
 
 impl MissionArgs {
@@ -122,6 +133,7 @@ fn options(args: &MissionArgs, seed: u64) -> anyhow::Result<HeadlessOptions> {
         map_png: args.png.clone(),
         truth_out: args.truth_out.clone(),
         mcap,
+        lidar: args.lidar_config()?,
         ..HeadlessOptions::default()
     })
 }

@@ -186,6 +186,7 @@ fn run_world(args: &SimArgs) -> anyhow::Result<()> {
             enabled: args.depth,
             ..Default::default()
         },
+        lidar: args.mission.lidar_config()?,
         ..sim::SimConfig::default()
     };
     if let Some(s) = &args.mission.start {
@@ -300,6 +301,7 @@ pub fn run_headless(args: &SimArgs) -> anyhow::Result<()> {
             enabled: args.record_depth,
             ..Default::default()
         },
+        lidar: args.mission.lidar_config()?,
         ..Default::default()
     };
     let mut simu = sim::Simulation::new(&scenario, cfg);

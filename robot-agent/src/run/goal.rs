@@ -30,6 +30,8 @@ pub struct HeadlessOptions {
     pub time_stages: bool,
     /// Live robot: write the simulator's truth here ([`crate::truth_log`]).
     pub truth_out: Option<std::path::PathBuf>,
+    /// The simulated LiDAR (model and rotation rate).
+    pub lidar: sim::LidarConfig,
 }
 
 impl Default for HeadlessOptions {
@@ -43,6 +45,7 @@ impl Default for HeadlessOptions {
             mcap: None,
             time_stages: false,
             truth_out: None,
+            lidar: sim::LidarConfig::default(),
         }
     }
 }

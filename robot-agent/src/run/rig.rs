@@ -101,6 +101,7 @@ impl Rig {
         cfg.datum = Some(scenario.datum());
         let mut sim_cfg = sim::SimConfig {
             seed: opts.seed,
+            lidar: opts.lidar.clone(),
             ..sim::SimConfig::default()
         };
         if let Some(s) = opts.start {

@@ -1,7 +1,6 @@
 //! The VLP-16 sweep model (per-laser timing, intensities by surface) and the depth-camera frame.
 
 use super::{DepthConfig, LidarConfig};
-use super::{VLP16_ELEVATIONS_DEG, VLP16_LASER_DT_S};
 use crate::world::{HitKind, Solid, SolidKind, World};
 use nalgebra::{Isometry3, Point3, Vector3};
 use rand::rngs::SmallRng;
@@ -102,7 +101,7 @@ impl Buckets {
     }
 }
 
-/// The VLP-16 sweep state.
+/// The spinning LiDAR's sweep state.
 pub(crate) struct Lidar {
     cfg: LidarConfig,
     extrinsic: Isometry3<f64>,
@@ -110,6 +109,8 @@ pub(crate) struct Lidar {
     az: Vec<(f64, f64)>,
     /// Per laser id: (cos el, sin el, ring).
     el: Vec<(f64, f64, u16)>,
+    /// Time between two lasers' firings in a column, seconds.
+    laser_dt_s: f64,
     rev_start_s: f64,
     next_col: usize,
     points: Vec<Point>,
@@ -127,17 +128,20 @@ impl Lidar {
                 (a.cos(), a.sin())
             })
             .collect();
-        let mut order: Vec<usize> = (0..16).collect();
-        order.sort_by(|&a, &b| VLP16_ELEVATIONS_DEG[a].total_cmp(&VLP16_ELEVATIONS_DEG[b]));
-        let mut ring = [0u16; 16];
+        let elevations = cfg.model.elevations_deg();
+        // Rings number the lasers bottom to top, as drivers publish them.
+        let mut order: Vec<usize> = (0..elevations.len()).collect();
+        order.sort_by(|&a, &b| elevations[a].total_cmp(&elevations[b]));
+        let mut ring = vec![0u16; elevations.len()];
         for (r, &id) in order.iter().enumerate() {
             ring[id] = r as u16;
         }
-        let el = VLP16_ELEVATIONS_DEG
+        let el: Vec<(f64, f64, u16)> = elevations
             .iter()
             .enumerate()
             .map(|(id, e)| (e.to_radians().cos(), e.to_radians().sin(), ring[id]))
             .collect();
+        let lasers = el.len();
         Self {
             cfg: cfg.clone(),
             extrinsic,
@@ -145,7 +149,8 @@ impl Lidar {
             el,
             rev_start_s: 0.0,
             next_col: 0,
-            points: Vec::with_capacity(n * 16),
+            points: Vec::with_capacity(n * lasers),
+            laser_dt_s: cfg.model.laser_dt_s(),
             buckets: Buckets::new(720),
             scratch_ids: Vec::new(),
             scratch_walkers: Vec::new(),
@@ -227,7 +232,7 @@ impl Lidar {
                     z: p.z as f32,
                     intensity: intensity(hit.kind, world),
                     ring,
-                    t_s: (tc - self.rev_start_s + id as f64 * VLP16_LASER_DT_S) as f32,
+                    t_s: (tc - self.rev_start_s + id as f64 * self.laser_dt_s) as f32,
                 });
             }
             self.next_col += 1;
@@ -236,7 +241,7 @@ impl Lidar {
                     stamp_s: self.rev_start_s,
                     points: std::mem::take(&mut self.points),
                 });
-                self.points.reserve(self.az.len() * 16);
+                self.points.reserve(self.az.len() * self.el.len());
                 self.next_col = 0;
                 self.rev_start_s += 1.0 / self.cfg.rate_hz;
             }

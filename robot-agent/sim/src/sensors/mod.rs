@@ -1,4 +1,5 @@
-//! Sensor models: VLP-16, SR4000 depth camera, wheel odometry, dual-antenna RTK GNSS.
+//! Sensor models: spinning LiDARs (VLP-16, HDL-32E, OS1-64), SR4000 depth camera, wheel odometry,
+//! dual-antenna RTK GNSS.
 
 mod gnss;
 mod inertial;
@@ -17,15 +18,81 @@ pub const VLP16_ELEVATIONS_DEG: [f64; 16] = [
 /// Time between two lasers' firings in one VLP-16 firing sequence, seconds.
 pub const VLP16_LASER_DT_S: f64 = 2.304e-6;
 
-/// VLP-16 model parameters.
+/// The spinning LiDARs the simulator models: each one's laser table and firing timing.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LidarModel {
+    /// Velodyne VLP-16: 16 lasers 2 deg apart over +-15 deg, interleaved firing.
+    #[default]
+    Vlp16,
+    /// Velodyne HDL-32E: 32 lasers 1.33 deg apart from -30.67 to +10.67 deg, interleaved.
+    Hdl32e,
+    /// Ouster OS1-64 (gen 1): 64 lasers evenly over +-16.6 deg, fired together, 1024 columns.
+    Os1_64,
+}
+
+impl std::str::FromStr for LidarModel {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.to_ascii_lowercase().as_str() {
+            "vlp16" | "vlp-16" => Ok(LidarModel::Vlp16),
+            "hdl32e" | "hdl-32e" | "hdl32" => Ok(LidarModel::Hdl32e),
+            "os1-64" | "os1_64" | "os164" => Ok(LidarModel::Os1_64),
+            _ => Err(format!(
+                "unknown LiDAR model {s:?}; the simulator has vlp16, hdl32e and os1-64"
+            )),
+        }
+    }
+}
+
+impl LidarModel {
+    /// Laser elevations in firing order (laser id 0..n), degrees.
+    pub fn elevations_deg(self) -> Vec<f64> {
+        match self {
+            LidarModel::Vlp16 => VLP16_ELEVATIONS_DEG.to_vec(),
+            // Even ids climb from -30.67 deg, odd ids from -9.33 deg, 4/3 deg apart.
+            LidarModel::Hdl32e => (0..32)
+                .map(|id| {
+                    let base = if id % 2 == 0 { -30.67 } else { -9.33 };
+                    base + (id / 2) as f64 * (4.0 / 3.0)
+                })
+                .collect(),
+            LidarModel::Os1_64 => (0..64).map(|id| 16.6 - id as f64 * (33.2 / 63.0)).collect(),
+        }
+    }
+
+    /// Time between two lasers' firings within one column, seconds.
+    pub fn laser_dt_s(self) -> f64 {
+        match self {
+            LidarModel::Vlp16 => VLP16_LASER_DT_S,
+            LidarModel::Hdl32e => 1.152e-6,
+            LidarModel::Os1_64 => 0.0,
+        }
+    }
+
+    /// Firing columns per rotation at `rate_hz`: the Velodynes fire columns at a fixed rate, so a
+    /// slower spin gives finer columns; the Ouster's column count is fixed.
+    pub fn columns(self, rate_hz: f64) -> usize {
+        let per_s = match self {
+            LidarModel::Vlp16 => 18_000.0,
+            LidarModel::Hdl32e => 21_700.0,
+            LidarModel::Os1_64 => return 1024,
+        };
+        (per_s / rate_hz.max(0.1)).round().max(1.0) as usize
+    }
+}
+
+/// Spinning-LiDAR model parameters.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct LidarConfig {
     /// Produce scans at all.
     pub enabled: bool,
+    /// Which sensor: laser table and firing timing.
+    pub model: LidarModel,
     /// Rotation rate, Hz.
     pub rate_hz: f64,
-    /// Firing columns per rotation (0.2 deg at 10 Hz = 1800).
+    /// Firing columns per rotation (VLP-16: 0.2 deg at 10 Hz = 1800).
     pub columns: usize,
     /// Maximum range, metres.
     pub max_range_m: f64,
@@ -37,14 +104,42 @@ pub struct LidarConfig {
 
 impl Default for LidarConfig {
     fn default() -> Self {
+        Self::of(LidarModel::Vlp16, 10.0)
+    }
+}
+
+impl LidarConfig {
+    /// `model` spinning at `rate_hz`, with its own column count.
+    pub fn of(model: LidarModel, rate_hz: f64) -> Self {
         Self {
             enabled: true,
-            rate_hz: 10.0,
-            columns: 1800,
+            model,
+            rate_hz,
+            columns: model.columns(rate_hz),
             max_range_m: 100.0,
             min_range_m: 0.4,
             range_noise_sigma_m: 0.015,
         }
+    }
+
+    /// Parses `MODEL[@HZ]` (`vlp16`, `vlp16@2`, `hdl32e@10`, `os1-64`); 10 Hz when no rate is
+    /// given.
+    pub fn parse_spec(spec: &str) -> Result<Self, String> {
+        let (model, hz) = match spec.split_once('@') {
+            Some((m, hz)) => {
+                let hz: f64 = hz.trim().parse().map_err(|_| {
+                    format!("bad rotation rate {hz:?} in {spec:?} (Hz, e.g. vlp16@2)")
+                })?;
+                (m, hz)
+            }
+            None => (spec, 10.0),
+        };
+        if !(1.0..=40.0).contains(&hz) {
+            return Err(format!(
+                "rotation rate {hz} Hz in {spec:?} is outside 1-40 Hz"
+            ));
+        }
+        Ok(Self::of(model.trim().parse()?, hz))
     }
 }
 
@@ -195,5 +290,59 @@ impl Default for GnssConfig {
             float_after_loss_s: 10.0,
             initial_float_s: 0.0,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn laser_tables_span_the_datasheet_fields_of_view() {
+        for (m, n, lo, hi) in [
+            (LidarModel::Vlp16, 16, -15.0, 15.0),
+            (LidarModel::Hdl32e, 32, -30.67, 10.67),
+            (LidarModel::Os1_64, 64, -16.6, 16.6),
+        ] {
+            let e = m.elevations_deg();
+            assert_eq!(e.len(), n, "{m:?}");
+            let min = e.iter().cloned().fold(f64::INFINITY, f64::min);
+            let max = e.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+            assert!(
+                (min - lo).abs() < 0.01 && (max - hi).abs() < 0.01,
+                "{m:?}: {min}..{max}"
+            );
+            let mut s = e.clone();
+            s.sort_by(f64::total_cmp);
+            assert!(
+                s.windows(2).all(|w| w[1] - w[0] > 0.4),
+                "{m:?}: distinct lasers"
+            );
+        }
+    }
+
+    #[test]
+    fn specs_parse_with_their_rates_and_bad_ones_say_why() {
+        let c = LidarConfig::parse_spec("vlp16@2").unwrap();
+        assert_eq!(
+            (c.model, c.rate_hz, c.columns),
+            (LidarModel::Vlp16, 2.0, 9000)
+        );
+        assert_eq!(
+            LidarConfig::parse_spec("vlp16").unwrap(),
+            LidarConfig::default()
+        );
+        let c = LidarConfig::parse_spec("HDL-32E@10").unwrap();
+        assert_eq!((c.model, c.columns), (LidarModel::Hdl32e, 2170));
+        assert_eq!(LidarConfig::parse_spec("os1-64@20").unwrap().columns, 1024);
+        assert!(LidarConfig::parse_spec("vlp32")
+            .unwrap_err()
+            .contains("vlp16"));
+        assert!(LidarConfig::parse_spec("vlp16@x")
+            .unwrap_err()
+            .contains("rate"));
+        assert!(LidarConfig::parse_spec("vlp16@0")
+            .unwrap_err()
+            .contains("1-40"));
     }
 }
