@@ -220,28 +220,38 @@ impl Agent {
         for shift in &loc.shifts {
             self.terrain.follow_frame(shift);
         }
-        if loc.graph_optimised {
-            // The pose graph moved the past: the map is rebuilt at the corrected poses.
-            let localiser = &self.localiser;
-            match self
-                .terrain
-                .rebuild(scan.stamp_s, localiser.base_from_lidar(), |t| {
-                    localiser.graph_map_from_slam_at(t)
-                }) {
-                Ok(tiles) => {
-                    if !tiles.is_empty() {
-                        let (n, kept) = self.terrain.rebuild_counts();
-                        tracing::info!(
-                            "map rebuilt at {:.2} s after a pose graph correction (rebuild {n}, {kept} sweeps): {} tiles to publish again",
-                            scan.stamp_s,
-                            tiles.len()
-                        );
-                        self.path_dirty = true;
-                    }
-                    self.changed_tiles.extend(tiles);
+        // The pose graph moved the past: the map is rebuilt at the corrected poses, a few
+        // kept sweeps per live sweep, and replaces the live map once it has caught up.
+        let localiser = &self.localiser;
+        let base_from_lidar = *localiser.base_from_lidar();
+        let rebuilt = if loc.graph_optimised {
+            self.terrain.correct(scan.stamp_s, &base_from_lidar, |t| {
+                localiser.graph_map_from_slam_at(t)
+            })
+        } else {
+            Ok(Vec::new())
+        }
+        .and_then(|mut tiles| {
+            tiles.extend(
+                self.terrain
+                    .advance_rebuild(scan.stamp_s, &base_from_lidar)?,
+            );
+            Ok(tiles)
+        });
+        match rebuilt {
+            Ok(tiles) => {
+                if !tiles.is_empty() {
+                    let (n, kept) = self.terrain.rebuild_counts();
+                    tracing::info!(
+                        "map rebuilt at {:.2} s after a pose graph correction (rebuild {n}, {kept} sweeps): {} tiles to publish again",
+                        scan.stamp_s,
+                        tiles.len()
+                    );
+                    self.path_dirty = true;
                 }
-                Err(e) => self.last_error = Some(format!("map rebuild: {e}")),
+                self.changed_tiles.extend(tiles);
             }
+            Err(e) => self.last_error = Some(format!("map rebuild: {e}")),
         }
         if loc.trusted {
             // The de-skewed sweep when SLAM made one: the raw one is smeared by the motion.
