@@ -176,7 +176,7 @@ impl SweepStore {
             let bytes = &mut self.bytes;
             let dropped = &mut self.dropped;
             self.sweeps.retain(|s| {
-                let keep = i >= half || i % 2 == 0;
+                let keep = i >= half || i.is_multiple_of(2);
                 i += 1;
                 if !keep {
                     *bytes -= sweep_bytes(s);

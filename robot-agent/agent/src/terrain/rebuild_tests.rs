@@ -113,7 +113,7 @@ fn an_incremental_rebuild_ends_with_the_one_shot_map_and_the_live_map_serves_mea
         "the one-shot rebuild is done at once"
     );
     assert_eq!(one_shot.rebuild_counts().0, 1);
-    assert!(obstacles_in(&one_shot, NORTH.0, NORTH.1) == 0);
+    assert_eq!(obstacles_in(&one_shot, NORTH.0, NORTH.1), 0);
     assert!(obstacles_in(&one_shot, TRUE_BOX.0, TRUE_BOX.1) > 0);
 
     assert!(stepped.correct(t_s, &blf, correction).unwrap().is_empty());
