@@ -12,24 +12,22 @@
 //! control rate ([`Agent::tick`]); it never reads a clock, so the same code runs in the headless
 //! simulator (faster than real time), on a real robot, in a replay and in tests.
 
-use crate::command::{refusal, Command, CommandKind, Direction, GoalTarget, TaughtRoute};
+use crate::command::TaughtRoute;
 use crate::config::AgentConfig;
-use crate::driver::{Cmd, Driver, DriverConfig, Teleop, Tracker};
-use crate::localiser::gnss::GnssGoal;
-use crate::localiser::{FrameKind, Localiser, PoseMap};
-use crate::mission::navigate::{Goal, Navigator};
-use crate::mission::repeat::{RepeatState, RouteFollower};
-use crate::mission::teach::RouteRecorder;
+use crate::driver::{Cmd, Driver, DriverConfig, Tracker};
+use crate::localiser::{Localiser, PoseMap};
+use crate::mission::navigate::Navigator;
+use crate::mission::repeat::RepeatState;
 use crate::mission::teach_view::TeachView;
-use crate::mission::{Event, MissionMachine, Mode, Outcome, Phase, Repeat};
-use crate::status::{AgentStatus, PoseEstimate, RouteProgress};
+use crate::mission::{Event, MissionMachine, Mode, Phase};
 use crate::terrain::TerrainMap;
 use crate::zones::ZoneMap;
-use common::command::{Refusal, RefusalCode};
-use common::grid::{Lattice, Tile, TileIndex};
-use common::msg::Datum;
+use common::grid::TileIndex;
 use sensing::{GnssSentence, ImuSample, OdomSample, Scan};
 use std::collections::BTreeSet;
+
+mod commands;
+mod report;
 
 /// What one sweep did.
 #[derive(Clone, Debug, Default)]
@@ -223,28 +221,38 @@ impl Agent {
         for shift in &loc.shifts {
             self.terrain.follow_frame(shift);
         }
-        if loc.graph_optimised {
-            // The pose graph moved the past: the map is rebuilt at the corrected poses.
-            let localiser = &self.localiser;
-            match self
-                .terrain
-                .rebuild(scan.stamp_s, localiser.base_from_lidar(), |t| {
-                    localiser.graph_map_from_slam_at(t)
-                }) {
-                Ok(tiles) => {
-                    if !tiles.is_empty() {
-                        let (n, kept) = self.terrain.rebuild_counts();
-                        tracing::info!(
-                            "map rebuilt at {:.2} s after a pose graph correction (rebuild {n}, {kept} sweeps): {} tiles to publish again",
-                            scan.stamp_s,
-                            tiles.len()
-                        );
-                        self.path_dirty = true;
-                    }
-                    self.changed_tiles.extend(tiles);
+        // The pose graph moved the past: the map is rebuilt at the corrected poses, a few
+        // kept sweeps per live sweep, and replaces the live map once it has caught up.
+        let localiser = &self.localiser;
+        let base_from_lidar = *localiser.base_from_lidar();
+        let rebuilt = if loc.graph_optimised {
+            self.terrain.correct(scan.stamp_s, &base_from_lidar, |t| {
+                localiser.graph_map_from_slam_at(t)
+            })
+        } else {
+            Ok(Vec::new())
+        }
+        .and_then(|mut tiles| {
+            tiles.extend(
+                self.terrain
+                    .advance_rebuild(scan.stamp_s, &base_from_lidar)?,
+            );
+            Ok(tiles)
+        });
+        match rebuilt {
+            Ok(tiles) => {
+                if !tiles.is_empty() {
+                    let (n, kept) = self.terrain.rebuild_counts();
+                    tracing::info!(
+                        "map rebuilt at {:.2} s after a pose graph correction (rebuild {n}, {kept} sweeps): {} tiles to publish again",
+                        scan.stamp_s,
+                        tiles.len()
+                    );
+                    self.path_dirty = true;
                 }
-                Err(e) => self.last_error = Some(format!("map rebuild: {e}")),
+                self.changed_tiles.extend(tiles);
             }
+            Err(e) => self.last_error = Some(format!("map rebuild: {e}")),
         }
         if loc.trusted {
             // The de-skewed sweep when SLAM made one: the raw one is smeared by the motion.
@@ -346,277 +354,6 @@ impl Agent {
         let u = self.terrain.update_at(points_map, sensor_m, robot, t_s)?;
         self.changed_tiles.extend(u.changed_tiles.iter().copied());
         Ok(u)
-    }
-
-    // ---- commands ----
-
-    /// One command; a refusal is counted, shown in the status and logged here (once).
-    pub fn on_command(&mut self, cmd: Command) -> Result<(), Refusal> {
-        let kind = cmd.kind.name();
-        let r = self.command(cmd);
-        match &r {
-            Err(e) => self.count_refusal(e),
-            // A refusal of this kind of command is history once one is accepted: an operator
-            // whose next goal was taken must not keep reading that the last one was refused.
-            Ok(()) => {
-                if self
-                    .last_error
-                    .as_deref()
-                    .is_some_and(|e| e.starts_with(&format!("{kind}:")))
-                {
-                    self.last_error = None;
-                }
-            }
-        }
-        r
-    }
-
-    /// A refusal made before the command reached the agent (the bus's checks): shown in the
-    /// status. `counted`: the bus counted it already.
-    pub fn note_refusal(&mut self, r: &Refusal) {
-        self.count_refusal(r);
-    }
-
-    fn count_refusal(&mut self, r: &Refusal) {
-        self.commands_refused += 1;
-        self.last_error = Some(r.to_string());
-        tracing::warn!("refused: {r}");
-    }
-
-    fn command(&mut self, cmd: Command) -> Result<(), Refusal> {
-        let t_s = cmd.t_s;
-        let kind_name = cmd.kind.name();
-        let event = match cmd.kind {
-            CommandKind::Goal {
-                id,
-                target,
-                tolerance_m,
-            } => Event::Goal(self.place_goal(t_s, id, target, tolerance_m)?),
-            CommandKind::Drive {
-                seq,
-                v_mps,
-                omega_rps,
-                deadman,
-            } => Event::Drive(Teleop {
-                t_s,
-                seq,
-                v_mps,
-                omega_rps,
-                deadman,
-            }),
-            CommandKind::Stop { reason } => Event::Stop(reason),
-            CommandKind::SpeedLimit { v_mps } => {
-                self.driver.set_speed_limit(v_mps);
-                return Ok(());
-            }
-            CommandKind::Record { name } => {
-                let mut rec = RouteRecorder::new(self.cfg.teach.clone(), name);
-                if let Some(p) = self.localiser.pose_now() {
-                    rec.offer(p.planar, self.localiser.lla_of(&p), self.unix_ms(t_s));
-                }
-                Event::Record(rec)
-            }
-            CommandKind::StopRecording => Event::StopRecording,
-            CommandKind::Repeat { route, direction } => {
-                Event::Repeat(Box::new(self.start_repeat(&route, direction)?))
-            }
-            CommandKind::Pause => Event::Pause,
-            CommandKind::Resume => Event::Resume,
-            CommandKind::Cancel => Event::Cancel,
-            CommandKind::Zones {
-                version,
-                session_id,
-                zones,
-            } => {
-                if session_id != self.id.session_id {
-                    return Err(refusal(
-                        RefusalCode::ZoneFrameMismatch,
-                        "zones",
-                        format!(
-                            "zone set {version} is for session {session_id}, this is {}",
-                            self.id.session_id
-                        ),
-                    ));
-                }
-                if version < self.zones.version {
-                    // Only a station may send zones (the access rules), but an old set captured
-                    // and sent again must not lift keep-out zones drawn since.
-                    return Err(refusal(
-                        RefusalCode::Replayed,
-                        "zones",
-                        format!(
-                            "zone set {version} is older than the set {} in force",
-                            self.zones.version
-                        ),
-                    ));
-                }
-                tracing::info!("zones: set {version}, {} zones", zones.len());
-                self.zones = ZoneMap { version, zones };
-                // The path in hand may cross a new keep-out zone: check it with the next sweep.
-                self.path_dirty = true;
-                return Ok(());
-            }
-        };
-        match self.mission.transition(event) {
-            Ok(Outcome::Done) => Ok(()),
-            Ok(Outcome::Recorded(rec)) => {
-                self.finish_teaching(t_s, rec);
-                Ok(())
-            }
-            Err(e) => {
-                debug_assert!(e.message.starts_with(kind_name), "{e}");
-                Err(e)
-            }
-        }
-    }
-
-    /// A goal in the map frame: as given, or through the datum for lat/lon.
-    fn place_goal(
-        &self,
-        t_s: f64,
-        id: u32,
-        target: GoalTarget,
-        tolerance_m: f64,
-    ) -> Result<Goal, Refusal> {
-        let pose = self
-            .localiser
-            .pose_now()
-            .map(|p| p.planar)
-            .unwrap_or_default();
-        let (goal_map, gnss) = match target {
-            GoalTarget::Map { x_m, y_m } => ((x_m, y_m), None),
-            GoalTarget::Geodetic {
-                lat_deg,
-                lon_deg,
-                h_m,
-            } => {
-                let fix = self.localiser.fix(t_s);
-                let g = GnssGoal::new(
-                    lat_deg,
-                    lon_deg,
-                    h_m,
-                    self.localiser.local_frame(),
-                    (pose.x_m, pose.y_m),
-                    fix.as_ref(),
-                )
-                .map_err(|e| {
-                    let code = match e {
-                        crate::localiser::gnss::GnssGoalError::NoDatum => RefusalCode::NoDatum,
-                        _ => RefusalCode::LatitudeOutOfRange,
-                    };
-                    refusal(code, "goal", e)
-                })?;
-                (g.goal_map, Some(g))
-            }
-        };
-        self.zones.check_goal(goal_map)?;
-        Ok(Goal {
-            id,
-            goal_map,
-            tolerance_m,
-            gnss,
-        })
-    }
-
-    /// Sets up a repeat of `route` in this session's map frame.
-    fn start_repeat(&self, route: &TaughtRoute, direction: Direction) -> Result<Repeat, Refusal> {
-        if route.points.len() < 2 {
-            return Err(refusal(
-                RefusalCode::RouteTooShort,
-                "route",
-                "fewer than 2 waypoints",
-            ));
-        }
-        let pts = self.route_in_map(route)?;
-        let ordered: Vec<(f64, f64)> = match direction {
-            Direction::Forward => pts,
-            Direction::Reverse => pts.into_iter().rev().collect(),
-        };
-        let pose = self
-            .localiser
-            .pose_now()
-            .map(|p| p.planar)
-            .unwrap_or_default();
-        let view = self
-            .teach_views
-            .iter()
-            .find(|(id, _)| *id == route.route_id && route.session_id == self.id.session_id)
-            .map(|(_, v)| v.clone());
-        Ok(Repeat {
-            follower: RouteFollower::new(self.cfg.repeat.clone(), &ordered, &pose),
-            route_id: route.route_id.clone(),
-            name: route.name.clone(),
-            paused: false,
-            last: None,
-            view,
-        })
-    }
-
-    /// The route's waypoints in this session's map frame: through lat/lon when both have a
-    /// datum, as taught when the route was taught in this session's frame.
-    fn route_in_map(&self, route: &TaughtRoute) -> Result<Vec<(f64, f64)>, Refusal> {
-        let local = self.localiser.local_frame().copied();
-        let same_session = route.session_id == self.id.session_id;
-        let all_geodetic = route
-            .points
-            .iter()
-            .all(|p| p.lat_deg.is_some() && p.lon_deg.is_some());
-        match (local, all_geodetic) {
-            (Some(l), true) if !same_session || route.datum != Some(l.datum()) => Ok(route
-                .points
-                .iter()
-                .map(|p| {
-                    let e = l.lla_to_enu(&Datum {
-                        lat_deg: p.lat_deg.unwrap_or_default(),
-                        lon_deg: p.lon_deg.unwrap_or_default(),
-                        h_m: p.h_m.unwrap_or(l.datum().h_m),
-                    });
-                    (e.x, e.y)
-                })
-                .collect()),
-            _ if same_session || route.datum.is_none() => {
-                Ok(route.points.iter().map(|p| (p.x_m, p.y_m)).collect())
-            }
-            _ => Err(refusal(
-                RefusalCode::RouteFrameMismatch,
-                "route",
-                "taught in another frame and this session has no datum",
-            )),
-        }
-    }
-
-    /// Ends teaching: the route and its teach-time view.
-    fn finish_teaching(&mut self, t_s: f64, rec: RouteRecorder) {
-        let now = self.localiser.pose_now();
-        let pose = now.map(|p| p.planar).unwrap_or_default();
-        let lla = now.and_then(|p| self.localiser.lla_of(&p));
-        let name = rec.name().to_string();
-        let points = rec.finish(pose, lla, self.unix_ms(t_s));
-        let route_id = format!("{}-{}", self.id.session_id, self.unix_ms(t_s));
-        let line: Vec<(f64, f64)> = points.iter().map(|p| (p.x_m, p.y_m)).collect();
-        let view = self.terrain.capture_teach_view(&line);
-        tracing::info!(
-            "teach: route {route_id}, {} waypoints, {} cells of teach-time traversability kept",
-            points.len(),
-            view.len()
-        );
-        if self.teach_views.len() >= TEACH_VIEWS_KEPT {
-            self.teach_views.remove(0);
-        }
-        self.teach_views.push((route_id.clone(), view));
-        self.taught = Some(TaughtRoute {
-            route_id,
-            name,
-            robot: self.id.robot.clone(),
-            session_id: self.id.session_id.clone(),
-            datum: self.localiser.frame().and_then(|f| f.1),
-            points,
-        });
-    }
-
-    /// The route taught last, once, after teaching ended.
-    pub fn take_taught_route(&mut self) -> Option<TaughtRoute> {
-        self.taught.take()
     }
 
     // ---- the loop's periodic work ----
@@ -802,174 +539,5 @@ impl Agent {
     /// The zones in force.
     pub fn zones(&self) -> &ZoneMap {
         &self.zones
-    }
-
-    // ---- what the agent tells the world ----
-
-    /// The pose estimate for now.
-    pub fn pose(&self, t_s: f64) -> Option<PoseEstimate> {
-        let p = self.localiser.pose_now()?;
-        let odom = self.localiser.last_odom();
-        Some(PoseEstimate {
-            t_s,
-            pose: p,
-            v_mps: odom.map_or(0.0, |o| o.v_mps),
-            omega_rps: odom.map_or(0.0, |o| o.omega_rps),
-            fix: self.localiser.fix_kind(t_s),
-            lla: self.localiser.lla_of(&p),
-        })
-    }
-
-    /// The status for now.
-    pub fn status(&self, t_s: f64) -> AgentStatus {
-        let pose = self
-            .localiser
-            .pose_now()
-            .map(|p| p.planar)
-            .unwrap_or_default();
-        let (mut phase, mut reason) = self.mission.phase(self.driver.safety().stop);
-        // An operator's drive is in force only while the deadman is held and fresh; after the
-        // keys are released the robot stands, and must not read "Driving".
-        let driving = self
-            .mission
-            .teleop()
-            .is_some_and(|d| d.deadman && t_s - d.t_s <= self.cfg.deadman_s);
-        if matches!(self.mission.mode(), Mode::Teleop | Mode::Teach) && !driving {
-            phase = Phase::Idle;
-            reason = "teleop: standing (no drive held)".into();
-        }
-        let here = (pose.x_m, pose.y_m);
-        let lead = 0.5 * self.cfg.profile.length_m;
-        let zone = self.zones.note(
-            here,
-            self.keep_out_margin_m,
-            self.zones.speed_cap(here, lead),
-        );
-        let route = self.mission.repeat().map(|r| {
-            let (k, n, left) = r.follower.progress(&pose);
-            RouteProgress {
-                route_id: r.route_id.clone(),
-                name: r.name.clone(),
-                waypoint: k,
-                waypoints: n,
-                distance_left_m: left,
-                detours: r.follower.detours.len(),
-            }
-        });
-        let nav = self.mission.nav();
-        // A goal that failed or was reached stays in the status (where, which id), so the
-        // operator sees where the robot gave up and a mission runner which goal ended.
-        let goal = nav.goal().or(match phase {
-            Phase::NoPath | Phase::Reached if self.mission.mode() != Mode::Repeat => {
-                nav.last_goal()
-            }
-            _ => None,
-        });
-        AgentStatus {
-            t_s,
-            mode: self.mission.mode(),
-            driving,
-            phase,
-            reason,
-            goal_m: goal.map(|g| g.goal_map),
-            goal_id: goal.map_or(0, |g| g.id),
-            fix: self.localiser.fix_kind(t_s),
-            gnss_lost: self.localiser.gnss_lost(t_s),
-            slam: self.localiser.health().clone(),
-            speed_limit_mps: self.driver.speed_limit_mps(),
-            speed_max_mps: self.cfg.control.v_max_mps,
-            zones_version: self.zones.version,
-            zone,
-            recording: self.mission.recording(),
-            route,
-            last_error: self.last_error.clone(),
-            commands_refused: self.commands_refused,
-        }
-    }
-
-    /// The path being followed (goal or route), map frame.
-    pub fn current_path(&self) -> Vec<(f64, f64)> {
-        match (self.mission.repeat(), self.localiser.pose_now()) {
-            (Some(r), Some(p)) => r.follower.path_ahead(&p.planar),
-            _ => self.mission.nav().path().to_vec(),
-        }
-    }
-
-    /// The tiles whose cells changed since the last call, sorted (what is published when is
-    /// the publisher's policy).
-    pub fn take_changed_tiles(&mut self) -> Vec<TileIndex> {
-        std::mem::take(&mut self.changed_tiles)
-            .into_iter()
-            .collect()
-    }
-
-    /// The current cells of one tile.
-    pub fn tile_cells(&self, index: TileIndex) -> Option<&[common::grid::Cell]> {
-        self.terrain.tile_cells(index)
-    }
-
-    /// Every current tile.
-    pub fn all_tiles(&self) -> Vec<Tile> {
-        self.terrain.tiles()
-    }
-
-    /// The map frame's anchoring, once the first sweep has arrived.
-    pub fn map_frame(&self) -> Option<(FrameKind, Option<Datum>)> {
-        self.localiser.frame()
-    }
-
-    /// The lattice tiles live on.
-    pub fn lattice(&self) -> Lattice {
-        self.terrain.lattice()
-    }
-
-    /// The localiser (evaluation, pose between sweeps).
-    pub fn localiser(&self) -> &Localiser {
-        &self.localiser
-    }
-
-    /// The terrain map (evaluation, rendering).
-    pub fn terrain(&self) -> &TerrainMap {
-        &self.terrain
-    }
-
-    /// The mapper (evaluation, rendering).
-    pub fn mapper(&self) -> &mapping::Mapper {
-        self.terrain.mapper()
-    }
-
-    /// The mapper, taking the agent apart (evaluation's last step).
-    pub fn into_mapper(self) -> mapping::Mapper {
-        self.terrain.into_mapper()
-    }
-
-    /// The mission state machine (evaluation).
-    pub fn mission(&self) -> &MissionMachine {
-        &self.mission
-    }
-
-    /// The driver (safety verdict, last command).
-    pub fn driver(&self) -> &Driver {
-        &self.driver
-    }
-
-    /// The mode the agent is in.
-    pub fn mode(&self) -> Mode {
-        self.mission.mode()
-    }
-
-    /// The last error or refusal, for operators and logs.
-    pub fn last_error(&self) -> Option<&str> {
-        self.last_error.as_deref()
-    }
-
-    /// Sweeps left out of the map because their pose was not trusted (a SLAM glitch).
-    pub fn scans_not_mapped(&self) -> u64 {
-        self.scans_not_mapped
-    }
-
-    /// Sweeps localised.
-    pub fn scans(&self) -> u32 {
-        self.localiser.scans()
     }
 }

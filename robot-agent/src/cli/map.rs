@@ -362,7 +362,7 @@ fn probe(
 }
 
 /// `on` / `off` (also `true` / `false`).
-fn parse_on_off(s: &str) -> Result<bool, String> {
+pub(super) fn parse_on_off(s: &str) -> Result<bool, String> {
     match s {
         "on" | "true" => Ok(true),
         "off" | "false" => Ok(false),

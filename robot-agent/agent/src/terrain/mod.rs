@@ -7,6 +7,8 @@
 
 pub mod layers;
 pub mod rebuild;
+#[cfg(test)]
+mod rebuild_tests;
 
 use crate::config::AgentConfig;
 use crate::localiser::{FrameShift, PoseMap};
@@ -68,8 +70,14 @@ pub struct TerrainMap {
     cleared_cells: usize,
     /// Sweeps kept for rebuilding after the pose graph's corrections (with `[graph] enabled`).
     kept: Option<rebuild::SweepStore>,
-    /// Rebuilds done.
+    /// The rebuild under way, if any (the live `mapper` serves meanwhile).
+    shadow: Option<rebuild::Shadow>,
+    /// Kept sweeps fed to the shadow per live sweep (0: the whole rebuild at once).
+    sweeps_per_tick: usize,
+    /// Rebuilds done (swapped in).
     rebuilds: u64,
+    /// Corrections that re-targeted a running rebuild instead of starting it again.
+    retargets: u64,
 }
 
 impl TerrainMap {
@@ -96,9 +104,13 @@ impl TerrainMap {
                     cfg.slam.graph.map_rebuild_spacing_m,
                     cfg.slam.graph.map_rebuild_min_move_m,
                     cfg.mapper.max_range_m,
+                    cfg.slam.graph.map_rebuild_max_mb,
                 )
             }),
+            shadow: None,
+            sweeps_per_tick: cfg.slam.graph.map_rebuild_sweeps_per_tick,
             rebuilds: 0,
+            retargets: 0,
         })
     }
 
@@ -149,11 +161,14 @@ impl TerrainMap {
         }
     }
 
-    /// The pose graph moved the past: when some kept sweep moved by more than
-    /// `map_rebuild_min_move_m`, the map is rebuilt from the kept sweeps at their corrected
-    /// poses (`map_from_slam_at(t)`, `map<-slam` for a pose made at `t`) and replaces this one,
-    /// its observed cells stamped `t_s` (the correction's time). Returns the tiles to publish again (empty when nothing was rebuilt).
-    pub fn rebuild(
+    /// The pose graph moved the past (`map_from_slam_at(t)`: `map<-slam` for a pose made at
+    /// `t`). When some kept sweep moved by more than `map_rebuild_min_move_m`, a rebuild from
+    /// the kept sweeps at their corrected poses starts; when one is under way it re-targets
+    /// (goes on, feeding the sweeps it has not fed yet at their new poses) if only those moved,
+    /// and starts again if one it fed moved (its map has that sweep in the wrong place). With
+    /// `map_rebuild_sweeps_per_tick = 0` the rebuild runs to its end here. Returns the tiles to
+    /// publish again when a rebuilt map replaced this one (see [`TerrainMap::advance_rebuild`]).
+    pub fn correct(
         &mut self,
         t_s: f64,
         base_from_lidar: &nalgebra::Isometry3<f64>,
@@ -162,23 +177,95 @@ impl TerrainMap {
         let Some(kept) = self.kept.as_mut() else {
             return Ok(Vec::new());
         };
-        let Some(sweeps) = kept.corrected(map_from_slam_at) else {
-            return Ok(Vec::new());
-        };
-        let mut fresh = mapping::Mapper::new(self.mapper.config().clone())?;
-        for r in &sweeps {
-            let (pts, origin) = rebuild::to_map(r, base_from_lidar);
-            let robot = robot_pose(&PoseMap::from_iso(r.map_from_base));
-            let u = fresh.update_sweep(pts, origin, &robot, r.t_s)?;
-            self.cleared_cells += u.cleared_cells;
+        // A shadow that fed nothing yet has nothing in a wrong place.
+        let fed_until = self
+            .shadow
+            .as_ref()
+            .map(|s| s.fed_until.unwrap_or(f64::NEG_INFINITY));
+        match kept.correct(map_from_slam_at, fed_until) {
+            rebuild::Correction::None => return Ok(Vec::new()),
+            rebuild::Correction::Retarget => self.retargets += 1,
+            rebuild::Correction::Restart => {
+                self.shadow = Some(rebuild::Shadow {
+                    mapper: mapping::Mapper::new(self.mapper.config().clone())?,
+                    fed_until: None,
+                    fed: 0,
+                });
+            }
         }
-        self.rebuilds += 1;
-        Ok(self.mapper.replace_with(fresh, t_s))
+        if self.sweeps_per_tick == 0 {
+            return self.feed_shadow(t_s, base_from_lidar, usize::MAX);
+        }
+        Ok(Vec::new())
     }
 
-    /// Rebuilds after pose graph corrections, and the sweeps kept for them.
+    /// One step of a rebuild under way (call once per live sweep, before mapping it): the
+    /// shadow map is fed up to `map_rebuild_sweeps_per_tick` kept sweeps, oldest first (the
+    /// live sweeps kept meanwhile included, so it catches up with the robot), and once none is
+    /// left it replaces the map, its observed cells stamped `t_s` (newer than anything the
+    /// live map published). Returns the tiles to publish again then, else nothing.
+    pub fn advance_rebuild(
+        &mut self,
+        t_s: f64,
+        base_from_lidar: &nalgebra::Isometry3<f64>,
+    ) -> Result<Vec<TileIndex>, mapping::MapError> {
+        self.feed_shadow(t_s, base_from_lidar, self.sweeps_per_tick.max(1))
+    }
+
+    fn feed_shadow(
+        &mut self,
+        t_s: f64,
+        base_from_lidar: &nalgebra::Isometry3<f64>,
+        n: usize,
+    ) -> Result<Vec<TileIndex>, mapping::MapError> {
+        let (Some(kept), Some(sh)) = (self.kept.as_ref(), self.shadow.as_mut()) else {
+            return Ok(Vec::new());
+        };
+        for r in kept.after(sh.fed_until, n) {
+            let (pts, origin) = rebuild::to_map(&r, base_from_lidar);
+            let robot = robot_pose(&PoseMap::from_iso(r.map_from_base));
+            match sh.mapper.update_sweep(pts, origin, &robot, r.t_s) {
+                Ok(u) => self.cleared_cells += u.cleared_cells,
+                Err(e) => {
+                    // The shadow cannot go past a sweep it refuses: this rebuild is given up,
+                    // the live map stays, the next correction starts another.
+                    self.shadow = None;
+                    return Err(e);
+                }
+            }
+            sh.fed_until = Some(r.t_s);
+            sh.fed += 1;
+        }
+        if kept.has_after(sh.fed_until) {
+            return Ok(Vec::new());
+        }
+        let Some(sh) = self.shadow.take() else {
+            return Ok(Vec::new());
+        };
+        self.rebuilds += 1;
+        Ok(self.mapper.replace_with(sh.mapper, t_s))
+    }
+
+    /// Rebuilds after pose graph corrections (swapped in), and the sweeps kept for them.
     pub fn rebuild_counts(&self) -> (u64, usize) {
         (self.rebuilds, self.kept.as_ref().map_or(0, |k| k.len()))
+    }
+
+    /// The rebuild store's memory: bytes held and sweeps dropped to stay under the cap.
+    pub fn rebuild_memory(&self) -> (usize, u64) {
+        self.kept
+            .as_ref()
+            .map_or((0, 0), |k| (k.bytes(), k.dropped()))
+    }
+
+    /// Kept sweeps a rebuild under way has fed its shadow map (None: no rebuild runs).
+    pub fn rebuild_progress(&self) -> Option<usize> {
+        self.shadow.as_ref().map(|s| s.fed)
+    }
+
+    /// Corrections that re-targeted a running rebuild.
+    pub fn rebuild_retargets(&self) -> u64 {
+        self.retargets
     }
 
     /// Cells whose stale evidence free space cleared, since the start.
@@ -191,6 +278,10 @@ impl TerrainMap {
     /// draws no false steps between old and new sweeps (docs/algorithms.md §4.13).
     pub fn follow_frame(&mut self, shift: &FrameShift) {
         self.mapper.follow_frame(shift, self.map_follow_radius_m);
+        // The shadow's cells are in the same frame and follow with it.
+        if let Some(sh) = self.shadow.as_mut() {
+            sh.mapper.follow_frame(shift, self.map_follow_radius_m);
+        }
     }
 
     /// The planning window around `pose` and the mapper's cells in it: what both the planning

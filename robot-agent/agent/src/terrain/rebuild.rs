@@ -4,24 +4,35 @@
 //! The cells hold evidence summaries (height statistics per epoch), not the points behind them,
 //! and one cell mixes sweeps of many times, so a cell cannot be moved by "its" correction. What
 //! is kept instead is a sweep every `map_rebuild_spacing_m` of travel (lidar frame, within the
-//! mapper's range) with its SLAM pose; after a correction that moves any of them by more than
-//! `map_rebuild_min_move_m`, a fresh mapper is fed the kept sweeps in time order at their
-//! corrected poses (`map<-slam` from the graph at each sweep's time) and replaces the map. Every
-//! tile is then offered for publication again; the publisher sends those whose cells differ, with
-//! newer versions, so stations replace them.
+//! mapper's range, each coordinate quantised to an `i16` step of range/32000, under a millimetre
+//! at 30 m) with its SLAM pose; after a correction that moves any of them by more than
+//! `map_rebuild_min_move_m`, a shadow mapper is fed the kept sweeps in time order at their
+//! corrected poses (`map<-slam` from the graph at each sweep's time), a few per sweep
+//! ([`Shadow`]), and replaces the map once it has caught up. Every tile is then offered for
+//! publication again; the publisher sends those whose cells differ, with newer versions, so
+//! stations replace them. The store is capped at `map_rebuild_max_mb`: over it, every second
+//! sweep of its oldest half is dropped (the oldest stretch ends up thinnest).
 
 use nalgebra::{Isometry3, Point3};
 use sensing::Point;
+
+/// Largest quantised coordinate: the mapper's range maps to this.
+const Q_MAX: f32 = 32000.0;
 
 /// One kept sweep.
 struct KeptSweep {
     t_s: f64,
     /// `slam<-base_link` (never changed by corrections).
     slam_from_base: Isometry3<f64>,
-    /// `map<-base_link` it was last mapped at.
+    /// `map<-base_link` it was last mapped at (by the live map or a rebuild).
     mapped_at: Isometry3<f64>,
-    /// Returns in the lidar frame.
-    points: Vec<[f32; 3]>,
+    /// Returns in the lidar frame, in steps of the store's `step_m`.
+    points: Vec<[i16; 3]>,
+}
+
+/// Bytes one kept sweep holds.
+fn sweep_bytes(s: &KeptSweep) -> usize {
+    std::mem::size_of::<KeptSweep>() + s.points.capacity() * std::mem::size_of::<[i16; 3]>()
 }
 
 /// The sweeps kept for rebuilding, oldest first.
@@ -29,28 +40,53 @@ pub struct SweepStore {
     spacing_m: f64,
     min_move_m: f64,
     max_range_m: f32,
+    /// Quantisation step of the returns, metres.
+    step_m: f32,
+    max_bytes: usize,
+    bytes: usize,
     sweeps: Vec<KeptSweep>,
+    /// Sweeps dropped to stay under the cap.
+    dropped: u64,
+}
+
+/// What a correction means for the kept sweeps.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Correction {
+    /// No sweep moved by more than `min_move_m`: nothing to rebuild.
+    None,
+    /// Only sweeps newer than the given time moved (those a running rebuild has not fed yet):
+    /// it goes on and feeds them at their new poses.
+    Retarget,
+    /// Some sweep at or before the given time moved (or no rebuild runs): a rebuild from the
+    /// first kept sweep.
+    Restart,
 }
 
 /// A sweep to map again: where, seen from where, what.
-pub struct Remap<'a> {
+pub struct Remap {
     /// The sweep's time, seconds.
     pub t_s: f64,
     /// Corrected `map<-base_link`.
     pub map_from_base: Isometry3<f64>,
     /// Returns in the lidar frame.
-    pub points: &'a [[f32; 3]],
+    pub points: Vec<[f32; 3]>,
 }
 
 impl SweepStore {
     /// An empty store keeping a sweep every `spacing_m` of travel, its returns within
-    /// `max_range_m` (the mapper's range: what it would drop anyway is not kept).
-    pub fn new(spacing_m: f64, min_move_m: f64, max_range_m: f64) -> Self {
+    /// `max_range_m` (the mapper's range: what it would drop anyway is not kept), at most
+    /// `max_mb` megabytes (10^6 bytes).
+    pub fn new(spacing_m: f64, min_move_m: f64, max_range_m: f64, max_mb: f64) -> Self {
+        let max_range_m = (max_range_m as f32).max(1e-3);
         Self {
             spacing_m,
             min_move_m,
-            max_range_m: max_range_m as f32,
+            max_range_m,
+            step_m: max_range_m / Q_MAX,
+            max_bytes: (max_mb.max(0.0) * 1e6) as usize,
+            bytes: 0,
             sweeps: Vec::new(),
+            dropped: 0,
         }
     }
 
@@ -69,6 +105,16 @@ impl SweepStore {
         self.sweeps.iter().map(|s| s.points.len()).sum()
     }
 
+    /// Bytes the kept sweeps hold.
+    pub fn bytes(&self) -> usize {
+        self.bytes
+    }
+
+    /// Sweeps dropped so far to stay under `map_rebuild_max_mb`.
+    pub fn dropped(&self) -> u64 {
+        self.dropped
+    }
+
     /// A sweep just mapped at `map_from_base` (its SLAM pose `slam_from_base`): kept when the
     /// robot moved `spacing_m` since the last kept one. Returns whether it was kept.
     pub fn offer(
@@ -81,61 +127,154 @@ impl SweepStore {
         let due = self.sweeps.last().is_none_or(|s| {
             (s.slam_from_base.translation.vector - slam_from_base.translation.vector).norm()
                 >= self.spacing_m
+                && t_s > s.t_s
         });
         if !due || !t_s.is_finite() {
             return false;
         }
         let r2 = self.max_range_m * self.max_range_m;
-        let points = points
+        let inv = 1.0 / self.step_m;
+        // Within the range every coordinate is at most Q_MAX steps: the casts cannot saturate.
+        let mut points: Vec<[i16; 3]> = points
             .iter()
             .filter(|p| p.is_finite() && p.x * p.x + p.y * p.y + p.z * p.z <= r2)
-            .map(|p| [p.x, p.y, p.z])
+            .map(|p| {
+                [
+                    (p.x * inv).round() as i16,
+                    (p.y * inv).round() as i16,
+                    (p.z * inv).round() as i16,
+                ]
+            })
             .collect();
-        self.sweeps.push(KeptSweep {
+        // Filtering leaves spare capacity; the cap counts what is held.
+        points.shrink_to_fit();
+        let s = KeptSweep {
             t_s,
             slam_from_base: *slam_from_base,
             mapped_at: *map_from_base,
             points,
-        });
+        };
+        self.bytes += sweep_bytes(&s);
+        self.sweeps.push(s);
+        self.enforce_cap();
         true
     }
 
-    /// The kept sweeps at the poses `map_from_slam_at(t)` gives, when some moved by more than
-    /// `min_move_m` from where they were mapped; `None` when none did (nothing to rebuild).
-    /// Sweeps the function has no answer for stay where they were mapped.
-    pub fn corrected(
+    /// Over the cap: every second sweep of the oldest half goes, until under it (a single sweep
+    /// over the cap goes too). The newest half keeps its spacing: it is what a loop closing
+    /// soon moves most, and the oldest stretch was rebuilt at least as often already.
+    fn enforce_cap(&mut self) {
+        while self.bytes > self.max_bytes && !self.sweeps.is_empty() {
+            let half = self.sweeps.len() / 2;
+            if half < 2 {
+                let s = self.sweeps.remove(0);
+                self.bytes -= sweep_bytes(&s);
+                self.dropped += 1;
+                continue;
+            }
+            let mut i = 0usize;
+            let bytes = &mut self.bytes;
+            let dropped = &mut self.dropped;
+            self.sweeps.retain(|s| {
+                let keep = i >= half || i.is_multiple_of(2);
+                i += 1;
+                if !keep {
+                    *bytes -= sweep_bytes(s);
+                    *dropped += 1;
+                }
+                keep
+            });
+        }
+    }
+
+    /// Applies a correction: the kept sweeps' poses become `map_from_slam_at(t) * slam<-base`
+    /// (sweeps the function has no answer for stay where they were mapped). `fed_until`: the
+    /// time of the last sweep a running rebuild has fed (None: none runs). A restart moves
+    /// every sweep, a retarget only those not fed yet (the fed ones moved by at most
+    /// `min_move_m`, the rebuild's tolerance).
+    pub fn correct(
         &mut self,
         map_from_slam_at: impl Fn(f64) -> Option<Isometry3<f64>>,
-    ) -> Option<Vec<Remap<'_>>> {
+        fed_until: Option<f64>,
+    ) -> Correction {
         let poses: Vec<Isometry3<f64>> = self
             .sweeps
             .iter()
             .map(|s| map_from_slam_at(s.t_s).map_or(s.mapped_at, |m| m * s.slam_from_base))
             .collect();
-        let moved = self.sweeps.iter().zip(&poses).any(|(s, p)| {
+        let moved = |s: &KeptSweep, p: &Isometry3<f64>| {
             (s.mapped_at.translation.vector - p.translation.vector).norm() > self.min_move_m
-        });
-        if !moved {
-            return None;
+        };
+        let fed = |s: &KeptSweep| fed_until.is_some_and(|f| s.t_s <= f);
+        let any = self.sweeps.iter().zip(&poses).any(|(s, p)| moved(s, p));
+        if !any {
+            return Correction::None;
         }
-        for (s, p) in self.sweeps.iter_mut().zip(&poses) {
-            s.mapped_at = *p;
-        }
-        Some(
-            self.sweeps
+        let restart = fed_until.is_none()
+            || self
+                .sweeps
                 .iter()
-                .map(|s| Remap {
-                    t_s: s.t_s,
-                    map_from_base: s.mapped_at,
-                    points: &s.points,
-                })
-                .collect(),
-        )
+                .zip(&poses)
+                .any(|(s, p)| fed(s) && moved(s, p));
+        for (s, p) in self.sweeps.iter_mut().zip(&poses) {
+            if restart || fed_until.is_none_or(|f| s.t_s > f) {
+                s.mapped_at = *p;
+            }
+        }
+        if restart {
+            Correction::Restart
+        } else {
+            Correction::Retarget
+        }
+    }
+
+    /// Up to `n` kept sweeps after time `after` (all from the first when None), oldest first,
+    /// at the poses they were last given, their returns restored to metres.
+    pub fn after(&self, after: Option<f64>, n: usize) -> Vec<Remap> {
+        let first = after.map_or(0, |t| self.sweeps.partition_point(|s| s.t_s <= t));
+        self.sweeps[first..]
+            .iter()
+            .take(n)
+            .map(|s| Remap {
+                t_s: s.t_s,
+                map_from_base: s.mapped_at,
+                points: s
+                    .points
+                    .iter()
+                    .map(|q| {
+                        [
+                            f32::from(q[0]) * self.step_m,
+                            f32::from(q[1]) * self.step_m,
+                            f32::from(q[2]) * self.step_m,
+                        ]
+                    })
+                    .collect(),
+            })
+            .collect()
     }
 }
 
+impl SweepStore {
+    /// Some kept sweep is newer than `after` (any when None).
+    pub fn has_after(&self, after: Option<f64>) -> bool {
+        self.sweeps
+            .last()
+            .is_some_and(|s| after.is_none_or(|t| s.t_s > t))
+    }
+}
+
+/// A rebuild under way: the shadow mapper and how far it got.
+pub struct Shadow {
+    /// The map being rebuilt.
+    pub mapper: mapping::Mapper,
+    /// Time of the last kept sweep fed, seconds (None: none yet).
+    pub fed_until: Option<f64>,
+    /// Kept sweeps fed.
+    pub fed: usize,
+}
+
 /// A kept sweep's returns in the map frame and the sensor's position there.
-pub fn to_map(r: &Remap<'_>, base_from_lidar: &Isometry3<f64>) -> (Vec<[f32; 3]>, [f64; 3]) {
+pub fn to_map(r: &Remap, base_from_lidar: &Isometry3<f64>) -> (Vec<[f32; 3]>, [f64; 3]) {
     let map_from_lidar = r.map_from_base * base_from_lidar;
     let m = map_from_lidar.cast::<f32>();
     let pts = r
@@ -168,7 +307,7 @@ mod tests {
 
     #[test]
     fn keeps_by_spacing_and_rebuilds_only_when_something_moved() {
-        let mut st = SweepStore::new(0.5, 0.05, 30.0);
+        let mut st = SweepStore::new(0.5, 0.05, 30.0, 100.0);
         for i in 0..10 {
             let p = se3::from_xyz_rpy([0.2 * f64::from(i), 0.0, 0.0], [0.0; 3]);
             st.offer(f64::from(i), &p, &p, &[pt(1.0), pt(40.0), pt(f32::NAN)]);
@@ -180,15 +319,56 @@ mod tests {
             4,
             "out-of-range and non-finite returns are not kept"
         );
-        assert!(st.corrected(|_| Some(Isometry3::identity())).is_none());
+        let ident = |_| Some(Isometry3::identity());
+        assert_eq!(st.correct(ident, None), Correction::None);
         let shift = se3::from_xyz_rpy([0.0, 0.3, 0.0], [0.0; 3]);
-        let r = st.corrected(|_| Some(shift)).expect("moved 0.3 m");
+        assert_eq!(st.correct(|_| Some(shift), None), Correction::Restart);
+        let r = st.after(None, usize::MAX);
         assert_eq!(r.len(), 4);
         assert!((r[1].map_from_base.translation.y - 0.3).abs() < 1e-12);
         let (pts, o) = to_map(&r[1], &Isometry3::identity());
-        assert!((pts[0][0] - 1.6).abs() < 1e-5 && (pts[0][1] - 0.3).abs() < 1e-5);
+        assert!((pts[0][0] - 1.6).abs() < 1e-3 && (pts[0][1] - 0.3).abs() < 1e-3);
         assert!((o[1] - 0.3).abs() < 1e-12);
         // Mapped there now: the same correction again is nothing to rebuild.
-        assert!(st.corrected(|_| Some(shift)).is_none());
+        assert_eq!(st.correct(|_| Some(shift), None), Correction::None);
+        // Kept at t = 0, 3, 6, 9. A rebuild that fed up to t = 6 goes on when only the newest
+        // sweep moves...
+        let late = se3::from_xyz_rpy([0.0, 0.5, 0.0], [0.0; 3]);
+        let only_late = |t: f64| Some(if t > 7.0 { late } else { shift });
+        assert_eq!(st.correct(only_late, Some(6.0)), Correction::Retarget);
+        assert_eq!(st.after(Some(6.0), 9).len(), 1);
+        assert!((st.after(Some(6.0), 9)[0].map_from_base.translation.y - 0.5).abs() < 1e-12);
+        // ...and starts again when one it fed moved.
+        assert_eq!(st.correct(|_| Some(late), Some(6.0)), Correction::Restart);
+        assert_eq!(st.after(Some(0.0), 2).len(), 2, "at most n, after the time");
+    }
+
+    #[test]
+    fn quantised_returns_stay_within_half_a_step_and_the_cap_thins_the_oldest_half() {
+        let step = 30.0 / Q_MAX;
+        let mut st = SweepStore::new(0.5, 0.05, 30.0, 1.0);
+        let p0 = Isometry3::identity();
+        let q = [0.123_456_f32, -29.99, 7.777];
+        st.offer(0.0, &p0, &p0, &[pt(q[0]), pt(q[1]), pt(q[2])]);
+        let back = st.after(None, 1);
+        for (k, &x) in q.iter().enumerate() {
+            assert!((back[0].points[k][0] - x).abs() <= 0.5 * step + 1e-6);
+        }
+        assert!(st.bytes() < 200, "6 bytes a return and the pose");
+        // 2000 returns a sweep (12 kB): 1 MB holds about 80.
+        let cloud: Vec<Point> = (0..2000).map(|i| pt(0.01 * i as f32)).collect();
+        let mut st = SweepStore::new(0.5, 0.05, 30.0, 1.0);
+        for i in 0..200 {
+            let p = se3::from_xyz_rpy([f64::from(i), 0.0, 0.0], [0.0; 3]);
+            assert!(st.offer(f64::from(i), &p, &p, &cloud));
+            assert!(st.bytes() <= 1_000_000);
+        }
+        assert!(st.len() > 40 && st.len() < 100, "{}", st.len());
+        assert_eq!(st.dropped() as usize + st.len(), 200);
+        let kept: Vec<f64> = st.after(None, usize::MAX).iter().map(|r| r.t_s).collect();
+        assert_eq!(*kept.last().unwrap(), 199.0, "the newest stays");
+        // Spacing grows towards the oldest end.
+        let gap = |w: &[f64]| w[1] - w[0];
+        assert!(gap(&kept[..2]) >= gap(&kept[kept.len() - 2..]));
     }
 }

@@ -93,6 +93,12 @@ pub struct GraphConfig {
     /// The terrain map is rebuilt when a correction moves some kept sweep by more than this,
     /// metres.
     pub map_rebuild_min_move_m: f64,
+    /// A rebuild feeds at most this many kept sweeps to its shadow map per live sweep, sweeps
+    /// (0: the whole rebuild inside the sweep that brought the correction).
+    pub map_rebuild_sweeps_per_tick: usize,
+    /// The kept sweeps hold at most this much, megabytes (10^6 bytes); over it the oldest half
+    /// is thinned to every second sweep.
+    pub map_rebuild_max_mb: f64,
 }
 
 impl Default for GraphConfig {
@@ -127,6 +133,8 @@ impl Default for GraphConfig {
             outage_min_s: 5.0,
             map_rebuild_spacing_m: 0.5,
             map_rebuild_min_move_m: 0.05,
+            map_rebuild_sweeps_per_tick: 2,
+            map_rebuild_max_mb: 64.0,
         }
     }
 }
