@@ -108,28 +108,6 @@ pub struct Config {
     /// After this long without accepted evidence a cell takes whatever comes, seconds.
     pub evidence_stale_s: f64,
 
-    // --- Ground alignment between passes (docs/algorithms.md §4.15) ---
-    /// A sweep's cells within this horizontal distance of the robot are compared with the
-    /// stored ground to measure the sweep's height offset; 0 turns alignment off, metres.
-    pub ground_align_range_m: f64,
-    /// Only cells without accepted evidence for this long are compared (another pass, not the
-    /// sweeps just before), seconds.
-    pub ground_align_min_age_s: f64,
-    /// Points a cell needs, in the sweep and in store, to be compared.
-    pub ground_align_min_points: u32,
-    /// Largest height spread (highest minus lowest point) of a compared cell, in the sweep and
-    /// in store: flat ground and grass, not faces or things on it, metres.
-    pub ground_align_flat_m: f64,
-    /// Cells compared before a sweep's median difference is taken.
-    pub ground_align_min_cells: usize,
-    /// Share of the measured difference taken into the offset per sweep.
-    pub ground_align_gain: f64,
-    /// A median difference larger than this is not taken (not drift), metres.
-    pub ground_align_max_m: f64,
-    /// Time constant with which the offset returns to zero while nothing old is in view
-    /// (the localiser's own height takes over again), seconds.
-    pub ground_align_hold_s: f64,
-
     // --- Evidence ---
     /// Length of one evidence epoch, seconds. A cell's statistics are those of its newest two
     /// epochs with observations, so newer evidence replaces what walkers left behind.
@@ -203,14 +181,6 @@ impl Default for Config {
             clear_reach_m: 25.0,
             far_evidence_factor: 2.0,
             evidence_stale_s: 3600.0,
-            ground_align_range_m: 0.0,
-            ground_align_min_age_s: 30.0,
-            ground_align_min_points: 3,
-            ground_align_flat_m: 0.06,
-            ground_align_min_cells: 40,
-            ground_align_gain: 0.3,
-            ground_align_max_m: 0.1,
-            ground_align_hold_s: 60.0,
             evidence_epoch_s: 1.0,
             obstacle_distance_m: 0.4,
             cost_distance_m: 1.2,
@@ -283,15 +253,6 @@ impl Config {
         bad(
             self.grass_sd_min_m >= 0.0 && self.grass_sd_max_m.is_finite(),
             "grass_sd_min_m must be >= 0 and grass_sd_max_m finite",
-        )?;
-        bad(
-            self.ground_align_range_m >= 0.0
-                && self.ground_align_min_age_s >= 0.0
-                && self.ground_align_flat_m > 0.0
-                && (0.0..=1.0).contains(&self.ground_align_gain)
-                && self.ground_align_max_m >= 0.0
-                && self.ground_align_hold_s > 0.0,
-            "ground_align_*: range, age, max >= 0, flat and hold > 0, gain in [0, 1]",
         )?;
         bad(
             self.evidence_epoch_s > 0.0,

@@ -22,7 +22,6 @@ mod far_rules;
 mod fast_hash;
 mod follow_frame;
 mod free_space;
-mod ground_align;
 mod inflation;
 mod inspect;
 mod negative_obstacles;
@@ -133,8 +132,6 @@ pub struct UpdateReport {
     pub cleared_cells: usize,
     /// Cells whose points this sweep were ignored: seen much better from closer before.
     pub far_skipped: usize,
-    /// Height taken off the sweep to meet the ground mapped on earlier passes (§4.15), metres.
-    pub ground_offset_m: f64,
 }
 
 /// The planner's view: a window of final cells around the robot, row-major, row 0 southmost.
@@ -215,8 +212,6 @@ pub struct Mapper {
     win: Window,
     scan_id: u32,
     robot: Option<RobotPose>,
-    /// The sweeps' height offset against the stored ground ([`ground_align`]).
-    ground_align: ground_align::GroundAlign,
     /// Frame corrections too small to apply yet (see [`Mapper::follow_frame`]).
     frame_lag: nalgebra::Isometry3<f64>,
     last_t_s: Option<f64>,
@@ -253,7 +248,6 @@ impl Mapper {
             win: Window::new(half),
             scan_id: 0,
             robot: None,
-            ground_align: ground_align::GroundAlign::default(),
             frame_lag: nalgebra::Isometry3::identity(),
             last_t_s: None,
             offsets,
@@ -357,26 +351,6 @@ impl Mapper {
         let before = pts.len();
         pts.retain(|p| p.iter().all(|v| v.is_finite()));
         rep.dropped_non_finite = before - pts.len();
-        // A sweep placed with a height drifted since the ground around was mapped is brought
-        // onto that ground first (§4.15): one offset for the sweep, its sensor and the robot.
-        let mut sensor = sensor;
-        let mut robot = *robot;
-        if sensor.is_some() && kind == Evidence::Scan {
-            let dz = self.ground_offset(&pts, (robot.x_m, robot.y_m), t_s);
-            if dz != 0.0 {
-                let dz32 = dz as f32;
-                for p in &mut pts {
-                    p[2] -= dz32;
-                }
-                if let Some(o) = sensor.as_mut() {
-                    o[2] -= dz;
-                }
-                robot.z_m -= dz;
-                self.robot = Some(robot);
-            }
-        }
-        rep.ground_offset_m = self.ground_align.offset_m;
-        let robot = &robot;
 
         // Free space: where this sweep's beams crossed the robot's body band above the ground.
         // Computed from every return, before the range and height filters: a beam that ends far
