@@ -598,7 +598,11 @@ fn height_errors(
                 return None;
             }
             let s = mapper.height_stats(cx, cy);
-            (s.n >= min_n).then(|| s.mean_m - f64::from(t.height_m))
+            if s.n >= min_n {
+                Some(s.mean_m - f64::from(t.height_m))
+            } else {
+                None
+            }
         })
         .collect();
     let mut cell: Vec<f64> = err.iter().flatten().copied().collect();
@@ -606,11 +610,15 @@ fn height_errors(
     for j in 0..h {
         for i in 0..w {
             let Some(e) = err[j * w + i] else { continue };
-            if let Some(Some(r)) = (i + 1 < w).then(|| err[j * w + i + 1]) {
-                pairs.push(e - r);
+            if i + 1 < w {
+                if let Some(r) = err[j * w + i + 1] {
+                    pairs.push(e - r);
+                }
             }
-            if let Some(Some(u)) = (j + 1 < h).then(|| err[(j + 1) * w + i]) {
-                pairs.push(e - u);
+            if j + 1 < h {
+                if let Some(u) = err[(j + 1) * w + i] {
+                    pairs.push(e - u);
+                }
             }
         }
     }
