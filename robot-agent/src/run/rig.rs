@@ -307,7 +307,8 @@ impl Rig {
                     .angle(&(truth.rotation * nalgebra::Vector3::z()))
                     .to_degrees();
                 self.loc.tilt_max_deg = self.loc.tilt_max_deg.max(tilt);
-                if self.scan_mode == ScanMode::Localised {
+                // Bounded (a day of sweeps at 10 Hz): a live rig may run for long.
+                if self.scan_mode == ScanMode::Localised && self.loc_samples.len() < 1 << 20 {
                     self.loc_samples.push([d.z, tilt]);
                 }
                 self.loc.scans += 1;
