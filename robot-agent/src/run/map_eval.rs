@@ -122,6 +122,9 @@ pub struct MapEvalReport {
     pub slam_max_tilt_error_deg: f64,
     /// Mean tilt error, degrees.
     pub slam_mean_tilt_error_deg: f64,
+    /// Where height errors come from: the agent's pose against the truth per sweep, and the
+    /// map's heights against the world's.
+    pub heights: HeightDiagnostics,
     /// Sweeps left out of the map because their pose was not trusted.
     pub scans_not_mapped: u64,
     /// Collisions of the scripted drive (the drive should have none).
@@ -138,6 +141,61 @@ pub struct MapEvalReport {
     /// The wrong cells themselves (global lattice index, kind), for drawing.
     #[serde(skip)]
     pub error_cells: Vec<(i64, i64, ErrorKind)>,
+}
+
+/// Percentiles of one error, in the report's units.
+#[derive(Clone, Copy, Debug, Default, Serialize, PartialEq)]
+pub struct Percentiles {
+    /// Values measured.
+    pub n: usize,
+    /// 1st percentile.
+    pub p1: f64,
+    /// 5th percentile.
+    pub p5: f64,
+    /// Median.
+    pub p50: f64,
+    /// 95th percentile.
+    pub p95: f64,
+    /// 99th percentile.
+    pub p99: f64,
+    /// Largest.
+    pub max: f64,
+}
+
+impl Percentiles {
+    /// The percentiles of `v` (sorted in place); all zero when empty.
+    pub fn of(v: &mut [f64]) -> Self {
+        if v.is_empty() {
+            return Self::default();
+        }
+        v.sort_by(f64::total_cmp);
+        let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
+        Self {
+            n: v.len(),
+            p1: at(0.01),
+            p5: at(0.05),
+            p50: at(0.5),
+            p95: at(0.95),
+            p99: at(0.99),
+            max: v[v.len() - 1],
+        }
+    }
+}
+
+/// Height errors of a run: what a false or missed curb can come from.
+#[derive(Clone, Copy, Debug, Default, Serialize, PartialEq)]
+pub struct HeightDiagnostics {
+    /// The agent's pose height minus the true height after each sweep, metres (empty with
+    /// truth poses). A constant offset is harmless; its spread between passes is not.
+    pub pose_z_error_m: Percentiles,
+    /// Angle between the agent's and the true up axis after each sweep, degrees.
+    pub pose_tilt_error_deg: Percentiles,
+    /// Over scored flat cells (truth step under 2 cm, slope under 3 deg): the cell's mean
+    /// height minus the truth's, metres (grass lifts the mean by about half its height).
+    pub cell_height_error_m: Percentiles,
+    /// Over 4-neighbour pairs of those cells: the difference of their height errors, metres:
+    /// what a step rule reads as a step that is not there (or adds to one that is).
+    pub neighbour_error_m: Percentiles,
 }
 
 /// The pose graph's counters over a run.
@@ -289,6 +347,10 @@ pub fn run(
     rep.slam_max_z_error_m = rig.loc.z_max_m;
     rep.slam_max_tilt_error_deg = rig.loc.tilt_max_deg;
     rep.slam_mean_tilt_error_deg = rig.loc.tilt_mean_deg;
+    let (mut z, mut tilt): (Vec<f64>, Vec<f64>) =
+        rig.loc_samples.iter().map(|s| (s[0], s[1])).unzip();
+    rep.heights.pose_z_error_m = Percentiles::of(&mut z);
+    rep.heights.pose_tilt_error_deg = Percentiles::of(&mut tilt);
     rep.scans_not_mapped = rig.agent.scans_not_mapped();
     rep.cleared_cells = rig.agent.terrain().cleared_cells();
     let mapper = rig.agent.mapper();
@@ -496,6 +558,7 @@ pub fn score(
             }
         }
     }
+    height_errors(mapper, &truth, &said, x0, y0, w, h, rep);
     let ratio = |a: usize, b: usize| if b == 0 { 1.0 } else { a as f64 / b as f64 };
     let rate = |a: usize, b: usize| if b == 0 { 0.0 } else { a as f64 / b as f64 };
     rep.cells = n.cells;
@@ -510,6 +573,57 @@ pub fn score(
     rep.curb5_10_recall = ratio(n.c10_hit + n.c5_ok, n.c10 + n.c5);
     rep.curb10_detected = ratio(n.c10_hit, n.c10);
     rep.curb5_traversable = ratio(n.c5_ok, n.c5);
+}
+
+/// The map's heights against the world's over flat scored cells, and the difference of those
+/// errors between 4-neighbours (`HeightDiagnostics`).
+#[allow(clippy::too_many_arguments)]
+fn height_errors(
+    mapper: &Mapper,
+    truth: &sim::labels::TruthGrid,
+    said: &[Option<bool>],
+    x0: i64,
+    y0: i64,
+    w: usize,
+    h: usize,
+    rep: &mut MapEvalReport,
+) {
+    let min_n = mapper.config().min_points_per_cell;
+    let err: Vec<Option<f64>> = (0..w * h)
+        .map(|k| {
+            let (cx, cy) = (x0 + (k % w) as i64, y0 + (k / w) as i64);
+            said[k]?;
+            let t = truth.get(cx, cy)?;
+            if t.state != CellState::Traversable || t.step_m >= 0.02 || t.slope_deg >= 3.0 {
+                return None;
+            }
+            let s = mapper.height_stats(cx, cy);
+            if s.n >= min_n {
+                Some(s.mean_m - f64::from(t.height_m))
+            } else {
+                None
+            }
+        })
+        .collect();
+    let mut cell: Vec<f64> = err.iter().flatten().copied().collect();
+    let mut pairs = Vec::new();
+    for j in 0..h {
+        for i in 0..w {
+            let Some(e) = err[j * w + i] else { continue };
+            if i + 1 < w {
+                if let Some(r) = err[j * w + i + 1] {
+                    pairs.push(e - r);
+                }
+            }
+            if j + 1 < h {
+                if let Some(u) = err[(j + 1) * w + i] {
+                    pairs.push(e - u);
+                }
+            }
+        }
+    }
+    rep.heights.cell_height_error_m = Percentiles::of(&mut cell);
+    rep.heights.neighbour_error_m = Percentiles::of(&mut pairs);
 }
 
 #[derive(Default)]

@@ -60,6 +60,9 @@ pub struct Rig {
     pub collisions: u32,
     /// Worst localisation errors so far (agent pose vs truth, right after each scan).
     pub loc: LocalisationError,
+    /// Per sweep localised (not with truth poses): the height error of the agent's pose and
+    /// the angle between its up axis and the true one, degrees (`map eval`'s percentiles).
+    pub loc_samples: Vec<[f64; 2]>,
     pub(super) driven_m: f64,
     last_truth: (f64, f64),
     pub(super) trajectory: Vec<(f64, f64)>,
@@ -149,6 +152,7 @@ impl Rig {
             scan: Stat::default(),
             collisions: 0,
             loc: LocalisationError::default(),
+            loc_samples: Vec::new(),
             driven_m: 0.0,
             last_truth: (t.x, t.y),
             trajectory: vec![(t.x, t.y)],
@@ -304,6 +308,10 @@ impl Rig {
                     .angle(&(truth.rotation * nalgebra::Vector3::z()))
                     .to_degrees();
                 self.loc.tilt_max_deg = self.loc.tilt_max_deg.max(tilt);
+                // Bounded (a day of sweeps at 10 Hz): a live rig may run for long.
+                if self.scan_mode == ScanMode::Localised && self.loc_samples.len() < 1 << 20 {
+                    self.loc_samples.push([d.z, tilt]);
+                }
                 self.loc.scans += 1;
                 self.loc.tilt_mean_deg +=
                     (tilt - self.loc.tilt_mean_deg) / f64::from(self.loc.scans);
