@@ -9,14 +9,13 @@
 mod secure_support;
 mod station_support;
 
-use std::path::PathBuf;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
 use common::keys::{self, RobotId, Topic};
 use common::security::{CertFiles, FleetDir};
 use robot_agent::bus::{BusConfig, BusHandle, Command as BusCommand, ZenohMode, ZenohSettings};
-use secure_support::{pki, pose, secure_ep, TestSession, Tls};
+use secure_support::{fleet, pki, pose, secure_ep};
 use serde_json::Value;
 use station_support::*;
 use support::{bin, free_port, KillOnDrop};
@@ -24,7 +23,7 @@ use support::{bin, free_port, KillOnDrop};
 const LIMIT: Duration = Duration::from_secs(20);
 
 /// Puts a fresh goal, stamped by `s`, on `robot`'s goal key.
-fn put_goal(s: &TestSession, robot: &RobotId, goal_id: u32) {
+fn put_goal(s: &Observer, robot: &RobotId, goal_id: u32) {
     s.put(
         &keys::key(robot, Topic::CmdGoal),
         s.goal_bytes(goal_id, 3.0, 0.0),
@@ -53,10 +52,8 @@ fn health(port: u16) -> Value {
 fn a_monitor_watches_the_fleet_and_cannot_command_it() {
     let t_start = Instant::now();
     let dir = tempfile::tempdir().unwrap();
-    let pki_dir: PathBuf = dir.path().join("pki");
+    let pki_dir = fleet(dir.path(), "pki", &["r1"]);
     let ps = pki_dir.to_str().unwrap();
-    pki(&["init", "--dir", ps]);
-    pki(&["issue", "--robot", "r1", "--dir", ps]);
     let m = pki(&["add-monitor", "--name", "m1", "--dir", ps]);
     assert_eq!(m["cn"], "terranav:monitor:m1:1");
     let fleet = FleetDir::new(&pki_dir);
@@ -163,9 +160,9 @@ fn a_monitor_watches_the_fleet_and_cannot_command_it() {
     // the Zenoh key, as a client of the station and as a peer linked straight to the robot. Its
     // links come up (so what stops it is the rules, not a broken harness) ...
     let rogue_via_station =
-        TestSession::open(&[secure_ep(sp.zenoh)], Tls::member(&monitor_files), true);
+        Observer::open(&[secure_ep(sp.zenoh)], Tls::member(&monitor_files), true);
     assert_eq!(rogue_via_station.links_after(1, LIMIT), 1, "rogue's link");
-    let rogue_direct = TestSession::open(&[secure_ep(r1_port)], Tls::member(&monitor_files), false);
+    let rogue_direct = Observer::open(&[secure_ep(r1_port)], Tls::member(&monitor_files), false);
     // (Gossip may link it to the station as well: at least the robot's link.)
     assert!(
         rogue_direct.links_after(1, LIMIT) >= 1,
@@ -183,7 +180,7 @@ fn a_monitor_watches_the_fleet_and_cannot_command_it() {
     assert_eq!(bus.counters().commands_refused, 0, "dropped by the rules");
     // The same put with the station's certificate, through the station, does.
     let station_files = fleet.station();
-    let operator = TestSession::open(&[secure_ep(sp.zenoh)], Tls::member(&station_files), true);
+    let operator = Observer::open(&[secure_ep(sp.zenoh)], Tls::member(&station_files), true);
     assert_eq!(operator.links_after(1, LIMIT), 1, "operator's link");
     std::thread::sleep(Duration::from_millis(500));
     put_goal(&operator, &r1, 503);
@@ -225,7 +222,7 @@ fn a_monitor_watches_the_fleet_and_cannot_command_it() {
     );
     // The revoked certificate (a peer here: a client that cannot link fails to open) is sent
     // nothing, whether or not the station lets its link come up.
-    let revoked = TestSession::open(&[secure_ep(sp.zenoh)], Tls::member(&monitor_files), false);
+    let mut revoked = Observer::open(&[secure_ep(sp.zenoh)], Tls::member(&monitor_files), false);
     let links = revoked.links_after(1, Duration::from_secs(3));
     let heard = revoked
         .samples_while("terranav/**", Duration::from_secs(2), || {
@@ -245,10 +242,8 @@ fn a_monitor_watches_the_fleet_and_cannot_command_it() {
 fn a_router_lets_a_monitor_watch_and_not_command() {
     let t_start = Instant::now();
     let dir = tempfile::tempdir().unwrap();
-    let pki_dir: PathBuf = dir.path().join("pki");
+    let pki_dir = fleet(dir.path(), "pki", &["r1"]);
     let ps = pki_dir.to_str().unwrap();
-    pki(&["init", "--dir", ps]);
-    pki(&["issue", "--robot", "r1", "--dir", ps]);
     pki(&["add-monitor", "--name", "m1", "--dir", ps]);
     let fleet = FleetDir::new(&pki_dir);
 
@@ -267,8 +262,8 @@ fn a_router_lets_a_monitor_watch_and_not_command() {
     // The monitor's certificate, a client of the router (retried until the router listens).
     let t0 = Instant::now();
     let monitor_files = CertFiles::monitor(&fleet.monitor_dir("m1"));
-    let monitor = loop {
-        match TestSession::try_open(&[secure_ep(rp)], Tls::member(&monitor_files), true) {
+    let mut monitor = loop {
+        match Observer::try_open(&[secure_ep(rp)], Tls::member(&monitor_files), true) {
             Ok(r) => break r,
             Err(e) if t0.elapsed() > LIMIT => panic!("the router never took the monitor: {e}"),
             Err(_) => std::thread::sleep(Duration::from_millis(200)),
@@ -303,7 +298,7 @@ fn a_router_lets_a_monitor_watch_and_not_command() {
         got.is_empty(),
         "goals from the monitor's certificate: {got:?}"
     );
-    let operator = TestSession::open(&[secure_ep(rp)], Tls::member(&fleet.station()), true);
+    let operator = Observer::open(&[secure_ep(rp)], Tls::member(&fleet.station()), true);
     std::thread::sleep(Duration::from_millis(500));
     put_goal(&operator, &r1, 602);
     assert_eq!(goals_within(&bus, Duration::from_secs(5)), vec![602]);

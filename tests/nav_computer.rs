@@ -35,21 +35,10 @@ fn xy(v: &Value) -> (f64, f64) {
     (v["x_m"].as_f64().unwrap(), v["y_m"].as_f64().unwrap())
 }
 
-fn segment_distance(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
-    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
-    let len2 = dx * dx + dy * dy;
-    let t = if len2 > 1e-12 {
-        (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (p.0 - a.0 - t * dx).hypot(p.1 - a.1 - t * dy)
-}
-
 /// Distance from `p` to the polyline `line`.
 fn to_line(p: (f64, f64), line: &[(f64, f64)]) -> f64 {
     line.windows(2)
-        .map(|w| segment_distance(p, w[0], w[1]))
+        .map(|w| common::zone::segment_distance_m(w[0], w[1], p))
         .fold(f64::INFINITY, f64::min)
 }
 

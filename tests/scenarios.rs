@@ -61,11 +61,10 @@ fn park_goals_are_reached_among_walkers_seed_3() {
 }
 
 /// LiDARs other than the 10 Hz VLP-16 the agent was developed with, on its one default
-/// configuration (it is not told which sensor it has): a VLP-16 spun at 2 Hz (five times the
-/// motion within and between sweeps) and a 32-beam HDL-32E.
-#[test]
-fn park_goal_is_reached_with_a_vlp16_at_2_hz() {
-    assert_reached(&mission(
+/// configuration (it is not told which sensor it has): park's goal (-12, 0), seed 1, with
+/// `--lidar spec`.
+fn park_goal_with_lidar(spec: &str, timeout_s: &str) -> Value {
+    mission(
         "park",
         &[
             "--goal",
@@ -73,28 +72,23 @@ fn park_goal_is_reached_with_a_vlp16_at_2_hz() {
             "--seed",
             "1",
             "--timeout",
-            "200",
+            timeout_s,
             "--lidar",
-            "vlp16@2",
+            spec,
         ],
-    ));
+    )
 }
 
+/// A VLP-16 spun at 2 Hz: five times the motion within and between sweeps.
+#[test]
+fn park_goal_is_reached_with_a_vlp16_at_2_hz() {
+    assert_reached(&park_goal_with_lidar("vlp16@2", "200"));
+}
+
+/// A 32-beam HDL-32E.
 #[test]
 fn park_goal_is_reached_with_an_hdl32e() {
-    assert_reached(&mission(
-        "park",
-        &[
-            "--goal",
-            "-12,0",
-            "--seed",
-            "1",
-            "--timeout",
-            "150",
-            "--lidar",
-            "hdl32e",
-        ],
-    ));
+    assert_reached(&park_goal_with_lidar("hdl32e", "150"));
 }
 
 /// The sidewalk is behind a 15 cm curb (not climbable by the Husky); the only way up is the ramp at x = 40.

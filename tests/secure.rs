@@ -9,7 +9,7 @@
 mod secure_support;
 mod station_support;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
@@ -19,7 +19,7 @@ use common::keys::{self, RobotId, Topic};
 use common::msg::{self, Pose};
 use common::security::{CertFiles, FleetDir};
 use robot_agent::bus::{BusConfig, BusHandle, ZenohSettings};
-use secure_support::{pki, pose, secure_ep, PosePump, TestSession, Tls};
+use secure_support::{fleet, pki, pose, secure_ep, PosePump};
 use serde_json::Value;
 use station_support::*;
 use support::{bin, free_port, workspace_root};
@@ -27,17 +27,6 @@ use support::{bin, free_port, workspace_root};
 const LIMIT: Duration = Duration::from_secs(10);
 const ROBOT_UP: Duration = Duration::from_secs(40);
 const DRIVE: Duration = Duration::from_secs(120);
-
-/// A fleet in `dir/name` with certificates for `robots`.
-fn fleet(dir: &Path, name: &str, robots: &[&str]) -> PathBuf {
-    let p = dir.join(name);
-    let ps = p.to_str().expect("utf-8 path");
-    pki(&["init", "--dir", ps]);
-    for r in robots {
-        pki(&["issue", "--robot", r, "--dir", ps]);
-    }
-    p
-}
 
 /// A secure station on `ports.zenoh`.
 fn secure_station(ports: Ports, pki_dir: &Path, db: &Path) -> Station {
@@ -113,7 +102,7 @@ fn authorised_station_commands_a_secure_robot_and_a_replay_is_refused() {
     // An authorised session (the station's certificate) linked to the station and to the robot
     // captures the operator's goal as it goes out.
     let station_files = FleetDir::new(&pki_dir).station();
-    let eyes = TestSession::open(
+    let mut eyes = Observer::open(
         &[secure_ep(ports.zenoh), secure_ep(r1_port)],
         Tls::member(&station_files),
         false,
@@ -179,7 +168,7 @@ fn authorised_station_commands_a_secure_robot_and_a_replay_is_refused() {
     assert_eq!(st, 202);
     assert!(wait_for(LIMIT, || robot_entry(ports.http, "r1")
         .is_some_and(|r| r["status"]["mission"] == "Stopped")));
-    eyes.put(&capture[0].0, capture[0].1.clone());
+    eyes.put(&capture[0].key, capture[0].payload.clone());
     let counted = wait_for(LIMIT, || {
         robot_entry(ports.http, "r1").is_some_and(|r| r["status"]["commands_replayed"] == 1)
     });
@@ -216,7 +205,7 @@ fn strangers_cannot_connect_and_another_robot_can_neither_command_nor_read_nor_i
     let ca = FleetDir::new(&pki_dir).ca_cert();
 
     // No certificate at all, over TLS and over plain TCP to the TLS ports: no link.
-    let none = TestSession::open(
+    let mut none = Observer::open(
         &targets,
         Tls {
             ca: Some(&ca),
@@ -236,7 +225,7 @@ fn strangers_cannot_connect_and_another_robot_can_neither_command_nor_read_nor_i
         .iter()
         .map(|p| format!("tcp/127.0.0.1:{p}"))
         .collect();
-    let plain = TestSession::open(&plain, Tls::default(), false);
+    let plain = Observer::open(&plain, Tls::default(), false);
     assert_eq!(
         plain.links_after(1, Duration::from_secs(2)),
         0,
@@ -246,7 +235,7 @@ fn strangers_cannot_connect_and_another_robot_can_neither_command_nor_read_nor_i
     // The station's name, but from another fleet's CA: no link (the CA certificate is public,
     // so the intruder trusts ours; its own certificate does not chain to it).
     let foreign = FleetDir::new(&other).station();
-    let forged = TestSession::open(
+    let forged = Observer::open(
         &targets,
         Tls {
             ca: Some(&ca),
@@ -266,7 +255,7 @@ fn strangers_cannot_connect_and_another_robot_can_neither_command_nor_read_nor_i
 
     // Robot r2's own certificate: its links come up (it is of this fleet) ...
     let r2 = robot_files(&pki_dir, "r2");
-    let thief = TestSession::open(&targets, Tls::member(&r2), false);
+    let mut thief = Observer::open(&targets, Tls::member(&r2), false);
     assert_eq!(
         thief.links_after(2, LIMIT),
         2,
@@ -278,7 +267,7 @@ fn strangers_cannot_connect_and_another_robot_can_neither_command_nor_read_nor_i
         seen.is_empty(),
         "r2 read {} samples: {:?}",
         seen.len(),
-        seen.first().map(|s| &s.0)
+        seen.first().map(|s| &s.key)
     );
     // cannot command r1 (straight to r1's listener, and via the station),
     let r1 = RobotId::new("r1").unwrap();

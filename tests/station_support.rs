@@ -334,11 +334,13 @@ pub fn station_tile_index(port: u16, datum: &str) -> BTreeMap<TileIndex, u64> {
         .unwrap_or_default()
 }
 
-/// A Zenoh session of the test itself, connected to the station's endpoint, to see what the
-/// robots serve and to put raw payloads on their keys.
+/// A Zenoh session of the test itself: connected to the station's endpoint to see what the
+/// robots serve and to put raw payloads on their keys, or, with fleet certificates, an operator,
+/// a monitor or an intruder on secure links.
 pub struct Observer {
     rt: tokio::runtime::Runtime,
-    session: zenoh::Session,
+    /// The session.
+    pub session: zenoh::Session,
     subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
 }
 
@@ -352,26 +354,129 @@ pub struct Heard {
     pub payload: Vec<u8>,
 }
 
+/// The certificates an [`Observer`] presents on secure links: the CA it trusts (none: plain
+/// links only) and its own certificate and key (none: no client certificate).
+#[derive(Clone, Copy, Default)]
+pub struct Tls<'a> {
+    /// The CA to trust.
+    pub ca: Option<&'a Path>,
+    /// Certificate and key to present.
+    pub identity: Option<(&'a Path, &'a Path)>,
+}
+
+impl<'a> Tls<'a> {
+    /// A fleet member's files: its CA, certificate and key.
+    pub fn member(files: &'a common::security::CertFiles) -> Self {
+        Tls {
+            ca: Some(&files.ca),
+            identity: Some((&files.cert, &files.key)),
+        }
+    }
+}
+
 impl Observer {
     /// Connects to `endpoint` (loopback, multicast scouting off).
     pub fn connect(endpoint: &str) -> Observer {
+        let cfg = operator_station::station::zenoh_config(None, None, &[], &[endpoint.into()])
+            .expect("zenoh config");
+        let o = Self::open_config(cfg).expect("open zenoh");
+        // Let the link come up and the routes propagate.
+        std::thread::sleep(Duration::from_millis(500));
+        o
+    }
+
+    /// Opens a session that listens nowhere, with `tls`'s certificates, as a client (served by
+    /// what it connects to) or a peer (linked straight to each endpoint); panics when it cannot.
+    pub fn open(connect: &[String], tls: Tls, client: bool) -> Observer {
+        Self::try_open(connect, tls, client).expect("open zenoh")
+    }
+
+    /// As [`Observer::open`]; a client that cannot link fails to open.
+    pub fn try_open(connect: &[String], tls: Tls, client: bool) -> Result<Observer, String> {
+        let mut c = operator_station::station::zenoh_config(None, None, &[], connect)
+            .expect("zenoh config");
+        let mut set = |k: &str, v: String| c.insert_json5(k, &v).expect(k);
+        set("listen/endpoints", "[]".into());
+        if client {
+            set("mode", "\"client\"".into());
+        }
+        let path = |p: &Path| serde_json::to_string(&p.display().to_string()).unwrap();
+        if let Some(ca) = tls.ca {
+            set("transport/link/tls/root_ca_certificate", path(ca));
+        }
+        match tls.identity {
+            Some((cert, key)) => {
+                set("transport/link/tls/enable_mtls", "true".into());
+                set("transport/link/tls/connect_certificate", path(cert));
+                set("transport/link/tls/connect_private_key", path(key));
+            }
+            None => set("transport/link/tls/enable_mtls", "false".into()),
+        }
+        Self::open_config(c)
+    }
+
+    fn open_config(cfg: zenoh::Config) -> Result<Observer, String> {
         let rt = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(1)
             .enable_all()
             .build()
             .expect("runtime");
-        let cfg = operator_station::station::zenoh_config(None, None, &[], &[endpoint.into()])
-            .expect("zenoh config");
         let session = rt
             .block_on(async { zenoh::open(cfg).await })
-            .expect("open zenoh");
-        // Let the link come up and the routes propagate.
-        std::thread::sleep(Duration::from_millis(500));
-        Observer {
+            .map_err(|e| e.to_string())?;
+        Ok(Observer {
             rt,
             session,
             subscribers: Vec::new(),
+        })
+    }
+
+    /// Links (peers and routers) up after up to `wait` (the session keeps retrying).
+    pub fn links_after(&self, want: usize, wait: Duration) -> usize {
+        let t0 = Instant::now();
+        loop {
+            let n = self.rt.block_on(async {
+                let info = self.session.info();
+                info.peers_zid().await.count() + info.routers_zid().await.count()
+            });
+            if n >= want || t0.elapsed() > wait {
+                return n;
+            }
+            std::thread::sleep(Duration::from_millis(100));
         }
+    }
+
+    /// Messages received on `key` within `d`.
+    pub fn samples(&mut self, key: &str, d: Duration) -> Vec<Heard> {
+        self.samples_while(key, d, || {})
+    }
+
+    /// Messages received on `key` within `d`, calling `poke` every 100 ms meanwhile (to make
+    /// something publish while this session listens).
+    pub fn samples_while(&mut self, key: &str, d: Duration, mut poke: impl FnMut()) -> Vec<Heard> {
+        let heard = self.record(key);
+        let end = Instant::now() + d;
+        while let Some(left) = end.checked_duration_since(Instant::now()) {
+            poke();
+            std::thread::sleep(Duration::from_millis(100).min(left));
+        }
+        // The subscriber goes with the recording.
+        self.subscribers.pop();
+        let out = std::mem::take(&mut *heard.lock().unwrap_or_else(|p| p.into_inner()));
+        out
+    }
+
+    /// A fresh goal command to map point (`x`, `y`), stamped by this session.
+    pub fn goal_bytes(&self, goal_id: u32, x: f64, y: f64) -> Vec<u8> {
+        let st = common::command::CommandStamper::new(operator_station::station::sender_id(
+            &self.session,
+        ));
+        let g = common::msg::GoalCmd {
+            goal_id,
+            target: common::msg::GoalTarget::Map { x_m: x, y_m: y },
+            tolerance_m: 0.0,
+        };
+        common::msg::encode_cmd(st.next(now_ms()), &g)
     }
 
     /// Keeps every message on `key_expr` from now on in the returned list.

@@ -214,12 +214,10 @@ impl Driver {
     /// (period `P`) plus its braking distance stays within the stop zone's depth `d`:
     /// `v P + v^2 / 2a = d`, so `v = sqrt((aP)^2 + 2ad) - aP`, m/s.
     pub fn sensor_cap_mps(&self) -> f64 {
-        let (Some(p), a) = (self.sweep_period_s, self.cfg.brake_mps2) else {
+        let a = self.cfg.brake_mps2;
+        let Some(p) = self.sweep_period_s.filter(|_| a > 0.0) else {
             return f64::INFINITY;
         };
-        if a.is_nan() || a <= 0.0 {
-            return f64::INFINITY;
-        }
         let d = self.cfg.control.safety.stop_ahead_m.max(0.0);
         ((a * p).powi(2) + 2.0 * a * d).sqrt() - a * p
     }

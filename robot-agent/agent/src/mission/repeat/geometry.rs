@@ -9,17 +9,6 @@ pub(super) fn dist(a: (f64, f64), b: (f64, f64)) -> f64 {
     (a.0 - b.0).hypot(a.1 - b.1)
 }
 
-pub(super) fn point_segment_distance(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
-    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
-    let len2 = dx * dx + dy * dy;
-    let t = if len2 > 1e-12 {
-        (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    dist(p, (a.0 + t * dx, a.1 + t * dy))
-}
-
 pub(super) fn nearest(wps: &[Waypoint], p: (f64, f64)) -> usize {
     wps.iter()
         .enumerate()

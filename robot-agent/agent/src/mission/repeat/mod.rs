@@ -228,7 +228,7 @@ impl RouteFollower {
         let next = self.next.min(self.wps.len());
         if next > 0 && next < self.wps.len() {
             let (a, b) = (self.wps[next - 1].p, self.wps[next].p);
-            if point_segment_distance(r, a, b) <= self.cfg.reached_radius_m {
+            if segment_distance_m(a, b, r) <= self.cfg.reached_radius_m {
                 return self.wps[next - 1..].iter().map(|w| w.p).collect();
             }
         }
@@ -378,7 +378,7 @@ impl RouteFollower {
         let (mut along, mut best) = (0.0, None::<(usize, f64)>);
         for i in self.next.max(1)..self.wps.len() {
             let (a, b) = (self.wps[i - 1].p, self.wps[i].p);
-            let d = point_segment_distance(r, a, b);
+            let d = segment_distance_m(a, b, r);
             if best.is_none_or(|(_, bd)| d < bd - 1e-9) {
                 best = Some((i, d));
             }
@@ -389,7 +389,7 @@ impl RouteFollower {
         }
         if let Some((i, d)) = best {
             let current = if self.next >= 1 && self.next < self.wps.len() {
-                point_segment_distance(r, self.wps[self.next - 1].p, self.wps[self.next].p)
+                segment_distance_m(self.wps[self.next - 1].p, self.wps[self.next].p, r)
             } else {
                 f64::INFINITY
             };
@@ -447,4 +447,5 @@ mod geometry;
 #[cfg(test)]
 mod tests;
 
-use geometry::{dist, nearest, point_segment_distance, push_free};
+use common::zone::segment_distance_m;
+use geometry::{dist, nearest, push_free};
