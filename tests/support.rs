@@ -18,17 +18,7 @@ pub fn workspace_root() -> PathBuf {
 /// `../shared/data` next to the project, or None (with a printed notice naming `what`) when absent.
 /// Under CI (`CI=true`) the data must be there: a missing folder fails the test instead.
 pub fn shared_data(what: &str) -> Option<PathBuf> {
-    let p = workspace_root().join("../shared/data");
-    if p.is_dir() {
-        Some(p)
-    } else {
-        assert!(
-            std::env::var("CI").as_deref() != Ok("true"),
-            "{what} needs ../shared/data, which CI always has: it is missing"
-        );
-        println!("skipping {what}: ../shared/data is absent");
-        None
-    }
+    common::shared_data::locate(env!("CARGO_MANIFEST_DIR"), "", what)
 }
 
 /// Path of a workspace binary (`robot-agent`, `operator-station`) built in the same profile as the test.

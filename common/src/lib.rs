@@ -21,4 +21,5 @@ pub mod keys;
 pub mod msg;
 pub mod robot;
 pub mod security;
+pub mod shared_data;
 pub mod zone;

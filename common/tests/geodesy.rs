@@ -10,12 +10,8 @@ use common::msg::Datum;
 use nalgebra::Vector3;
 use proptest::prelude::*;
 
-fn data_dir() -> Option<PathBuf> {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .parent()?
-        .to_path_buf();
-    let dir = root.join("../shared/data");
-    dir.is_dir().then_some(dir)
+fn data_dir(what: &str) -> Option<PathBuf> {
+    common::shared_data::locate(env!("CARGO_MANIFEST_DIR"), "", what)
 }
 
 fn nums(s: &str) -> Vec<f64> {
@@ -34,8 +30,7 @@ fn datum(v: &[f64]) -> Datum {
 
 #[test]
 fn reference_vectors_reproduce_within_tolerance() {
-    let Some(dir) = data_dir() else {
-        println!("skipping reference_vectors_reproduce_within_tolerance: ../shared/data is absent");
+    let Some(dir) = data_dir("reference_vectors_reproduce_within_tolerance") else {
         return;
     };
     let text = std::fs::read_to_string(dir.join("geodesy/vectors.tsv")).expect("read vectors");

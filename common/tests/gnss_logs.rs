@@ -14,12 +14,8 @@ use std::path::PathBuf;
 use common::geo::nmea::{parse_sentence, Gga, Sentence};
 use serde_json::Value;
 
-fn data_dir() -> Option<PathBuf> {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .parent()?
-        .to_path_buf();
-    let dir = root.join("../shared/data");
-    dir.is_dir().then_some(dir)
+fn data_dir(what: &str) -> Option<PathBuf> {
+    common::shared_data::locate(env!("CARGO_MANIFEST_DIR"), "", what)
 }
 
 #[derive(Default, Debug)]
@@ -192,8 +188,7 @@ fn check_log(dir: &std::path::Path, name: &str) -> Stats {
 
 #[test]
 fn gnss_logs_agree_with_gpsd() {
-    let Some(dir) = data_dir() else {
-        println!("skipping gnss_logs_agree_with_gpsd: ../shared/data is absent");
+    let Some(dir) = data_dir("gnss_logs_agree_with_gpsd") else {
         return;
     };
     let gnss = dir.join("gnss");
@@ -213,8 +208,7 @@ fn gnss_logs_agree_with_gpsd() {
 
 #[test]
 fn rtk_log_has_fixed_and_differential_quality() {
-    let Some(dir) = data_dir() else {
-        println!("skipping rtk_log_has_fixed_and_differential_quality: ../shared/data is absent");
+    let Some(dir) = data_dir("rtk_log_has_fixed_and_differential_quality") else {
         return;
     };
     let log = std::fs::read_to_string(dir.join("gnss/nmea-rtk.log")).expect("read");
@@ -230,8 +224,7 @@ fn rtk_log_has_fixed_and_differential_quality() {
 
 #[test]
 fn trimble_examples_decode_and_a_bad_checksum_is_rejected() {
-    let Some(dir) = data_dir() else {
-        println!("skipping trimble_examples_decode: ../shared/data is absent");
+    let Some(dir) = data_dir("trimble_examples_decode") else {
         return;
     };
     let text = std::fs::read_to_string(dir.join("gnss/trimble-avr.txt")).expect("read");

@@ -220,22 +220,13 @@ mod tests {
         assert!(parse_scen("version 1\n0\tx.map\t1\t2\n").is_err());
     }
 
-    /// Workspace root = the directory holding Cargo.lock above this crate.
-    fn shared_movingai() -> Option<std::path::PathBuf> {
-        let mut dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-        while !dir.join("Cargo.lock").exists() {
-            if !dir.pop() {
-                return None;
-            }
-        }
-        let d = dir.join("../shared/data/movingai");
-        d.is_dir().then_some(d)
-    }
-
     #[test]
     fn real_maps_first_scenarios_are_exact() {
-        let Some(dir) = shared_movingai() else {
-            println!("skipping real_maps_first_scenarios_are_exact: ../shared/data is absent");
+        let Some(dir) = common::shared_data::locate(
+            env!("CARGO_MANIFEST_DIR"),
+            "movingai",
+            "real_maps_first_scenarios_are_exact",
+        ) else {
             return;
         };
         let mut maps: Vec<_> = std::fs::read_dir(&dir)

@@ -226,12 +226,13 @@ mod tests {
 
     #[test]
     fn reads_the_kitti_sequence() {
-        let root =
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/lidar/kitti-seq");
-        if !root.is_dir() {
-            println!("skipping reads_the_kitti_sequence: ../shared/data is absent");
+        let Some(root) = common::shared_data::locate(
+            env!("CARGO_MANIFEST_DIR"),
+            "lidar/kitti-seq",
+            "reads_the_kitti_sequence",
+        ) else {
             return;
-        }
+        };
         let poses = read_poses(&root).unwrap();
         let files = cloud_files(&root).unwrap();
         assert_eq!(poses.len(), files.len());

@@ -12,14 +12,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 fn data_dir(test: &str) -> Option<PathBuf> {
-    // robot-agent/sensing -> workspace root -> ../shared/data
-    let d = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/lidar/vlp16");
-    if d.is_dir() {
-        Some(d)
-    } else {
-        println!("skipping {test}: ../shared/data is absent");
-        None
-    }
+    common::shared_data::locate(env!("CARGO_MANIFEST_DIR"), "lidar/vlp16", test)
 }
 
 fn bag_path(d: &std::path::Path) -> PathBuf {

@@ -6,10 +6,7 @@ use slam::{se3, Config, Slam};
 use std::path::PathBuf;
 
 fn data_dir(name: &str) -> Option<PathBuf> {
-    // robot-agent/slam -> workspace root -> ../shared/data
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let d = root.join("../shared/data/lidar").join(name);
-    d.exists().then_some(d)
+    common::shared_data::locate(env!("CARGO_MANIFEST_DIR"), &format!("lidar/{name}"), name)
 }
 
 fn workspace_file(rel: &str) -> PathBuf {
@@ -35,7 +32,6 @@ fn read_matrix(path: &std::path::Path) -> Isometry3<f64> {
 #[test]
 fn registration_pair_from_1m_10deg_offsets() {
     let Some(dir) = data_dir("registration-pair") else {
-        println!("skipping registration_pair_from_1m_10deg_offsets: ../shared/data is absent");
         return;
     };
     let source = sensing::ply::read_ply(dir.join("source.ply")).expect("source.ply");
@@ -72,7 +68,6 @@ fn registration_pair_from_1m_10deg_offsets() {
 #[test]
 fn kitti_first_frames_within_bounds() {
     let Some(dir) = data_dir("kitti-seq") else {
-        println!("skipping kitti_first_frames_within_bounds: ../shared/data is absent");
         return;
     };
     let text = std::fs::read_to_string(workspace_file("config/slam-kitti.toml")).expect("config");
@@ -113,7 +108,6 @@ fn kitti_first_frames_within_bounds() {
 #[test]
 fn kitti_sequence_within_the_issue_bounds() {
     let Some(dir) = data_dir("kitti-seq") else {
-        println!("skipping kitti_sequence_within_the_issue_bounds: ../shared/data is absent");
         return;
     };
     let text = std::fs::read_to_string(workspace_file("config/slam-kitti.toml")).expect("config");
@@ -156,7 +150,6 @@ fn config_file_matches_defaults() {
 #[test]
 fn kitti_sequence_with_the_default_config() {
     let Some(dir) = data_dir("kitti-seq") else {
-        println!("skipping kitti_sequence_with_the_default_config: ../shared/data is absent");
         return;
     };
     let text =
