@@ -6,7 +6,7 @@ use crate::filters::{self, OrientedCloud};
 use crate::icp::{self, IcpResult, IcpStatus};
 use crate::map::{Map, MapUpdateStats};
 use crate::se3;
-use nalgebra::{Isometry3, Point3, Vector3, Vector6};
+use nalgebra::{Isometry3, Vector3, Vector6};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use sensing::{OdomSample, Point, Scan};
@@ -323,8 +323,11 @@ impl Slam {
             scan.points
                 .iter()
                 .map(|p| {
-                    let tf = se3::exp(&(xi * f64::from(p.t_s)));
-                    let q = tf * Point3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z));
+                    let q = se3::exp_apply(
+                        &xi,
+                        f64::from(p.t_s),
+                        &Vector3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z)),
+                    );
                     Point {
                         x: q.x as f32,
                         y: q.y as f32,
