@@ -286,8 +286,15 @@ impl Map {
         let mut nb = Vec::with_capacity(k);
         let mut dirty = vec![false; n];
         let mut list: Vec<u32> = Vec::new();
+        // The new points' neighbourhoods, kept for their own fits below (the same query on the
+        // same index: asking again cost half of this pass's searches).
+        let mut new_nb: Vec<(u32, f32)> = Vec::with_capacity((n - first_new) * k);
+        let mut new_at: Vec<u32> = Vec::with_capacity(n - first_new + 1);
+        new_at.push(0);
         for i in first_new..n {
             self.knn(&self.cloud.points[i], k, r, &mut nb);
+            new_nb.extend_from_slice(&nb);
+            new_at.push(new_nb.len() as u32);
             // A trusted normal stays (its neighbourhood was already a good plane); untrusted
             // ones get another chance as the map fills in around them.
             for (j, _) in &nb {
@@ -305,8 +312,14 @@ impl Map {
             .iter()
             .map(|&i| {
                 let p = self.cloud.points[i as usize];
-                self.knn(&p, k, r, &mut nb);
-                let Some(fit) = pca_fit(&self.cloud.points, &nb).filter(|f| {
+                let nb: &[(u32, f32)] = match (i as usize).checked_sub(first_new) {
+                    Some(j) => &new_nb[new_at[j] as usize..new_at[j + 1] as usize],
+                    None => {
+                        self.knn(&p, k, r, &mut nb);
+                        &nb
+                    }
+                };
+                let Some(fit) = pca_fit(&self.cloud.points, nb).filter(|f| {
                     f.is_planar(cfg.normal_min_spread, cfg.normal_max_thickness)
                         && f.fits(&Vector3::from(p), PLANE_FIT_MIN_M)
                 }) else {

@@ -6,7 +6,7 @@ use crate::filters::{self, OrientedCloud};
 use crate::icp::{self, IcpResult, IcpStatus};
 use crate::map::{Map, MapUpdateStats};
 use crate::se3;
-use nalgebra::{Isometry3, Point3, Vector3, Vector6};
+use nalgebra::{Isometry3, Vector3, Vector6};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use sensing::{OdomSample, Point, Scan};
@@ -94,8 +94,6 @@ pub struct SlamOutput {
     pub pose_map_lidar: Isometry3<f64>,
     /// `map<-odom`, when wheel odometry is fed.
     pub pose_map_odom: Option<Isometry3<f64>>,
-    /// Map points around the robot for the traversability mapper, map frame.
-    pub map_cloud: Vec<Point>,
     /// The whole sweep de-skewed into the lidar frame at `stamp_s` (every return, unfiltered),
     /// when the scan had per-point times and de-skewing is on; the mapper wants this, not the
     /// smeared raw sweep.
@@ -212,6 +210,21 @@ impl Slam {
         &self.cfg
     }
 
+    /// Map points within `map.output_radius_m` of the robot's last scanned pose (`base_link`),
+    /// map frame, for a traversability mapper fed map clouds; empty before the first scan or
+    /// with a radius of 0. Built on request: the agent maps from the de-skewed sweep, and
+    /// building it with every scan cost ~0.3 ms.
+    pub fn map_cloud(&self) -> Vec<Point> {
+        let r = self.cfg.map.output_radius_m;
+        match self.history.back() {
+            Some((_, map_lidar)) if r > 0.0 => {
+                let base = map_lidar * self.base_from_lidar.inverse();
+                self.map.cloud_around(&base.translation.vector, r)
+            }
+            _ => Vec::new(),
+        }
+    }
+
     /// The map.
     pub fn map(&self) -> &Map {
         &self.map
@@ -323,8 +336,11 @@ impl Slam {
             scan.points
                 .iter()
                 .map(|p| {
-                    let tf = se3::exp(&(xi * f64::from(p.t_s)));
-                    let q = tf * Point3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z));
+                    let q = se3::exp_apply(
+                        &xi,
+                        f64::from(p.t_s),
+                        &Vector3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z)),
+                    );
                     Point {
                         x: q.x as f32,
                         y: q.y as f32,
@@ -426,21 +442,12 @@ impl Slam {
         {
             self.odom.pop_front();
         }
-        let map_cloud = if self.cfg.map.output_radius_m > 0.0 {
-            self.map.cloud_around(
-                &pose_map_base.translation.vector,
-                self.cfg.map.output_radius_m,
-            )
-        } else {
-            Vec::new()
-        };
         let r = icp_res.as_ref();
         Ok(SlamOutput {
             stamp_s: scan.stamp_s,
             pose_map_base,
             pose_map_lidar,
             pose_map_odom,
-            map_cloud,
             deskewed,
             diagnostics: Diagnostics {
                 prior: prior_kind,

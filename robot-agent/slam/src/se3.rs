@@ -27,6 +27,38 @@ pub fn exp(xi: &Vector6<f64>) -> Isometry3<f64> {
     Isometry3::from_parts(Translation3::from(t), UnitQuaternion::from_scaled_axis(w))
 }
 
+/// Below this angle the coefficients of [`exp_apply`] come from their Taylor series (five
+/// terms: the first one left out is under 1e-17 relative), above it from `sin_cos`.
+const SERIES_MAX_RAD: f64 = 0.1;
+
+/// `exp(xi * t) * p`: a point moved by a constant twist applied for `t` (de-skewing a sweep,
+/// one call per return). With `w = omega t`, `u = v t` and `th = |w|`, Rodrigues' formula and
+/// the left Jacobian in cross products: `p + S w x p + A w x (w x p) + u + A w x u +
+/// B w x (w x u)`, `S = sin th / th`, `A = (1 - cos th) / th^2`, `B = (th - sin th) / th^3`.
+/// A sweep turns a few hundredths of a radian, so the three coefficients are short series
+/// instead of three trigonometric calls per point ([`exp`] took ~5 % of the agent's time here);
+/// the result agrees with [`exp`] to ~1e-16 relative, far below an `f32` coordinate's step.
+pub fn exp_apply(xi: &Vector6<f64>, t: f64, p: &Vector3<f64>) -> Vector3<f64> {
+    let w = Vector3::new(xi[0] * t, xi[1] * t, xi[2] * t);
+    let u = Vector3::new(xi[3] * t, xi[4] * t, xi[5] * t);
+    let th2 = w.norm_squared();
+    let (s, a, b) = if th2 < SERIES_MAX_RAD * SERIES_MAX_RAD {
+        let x = th2;
+        (
+            1.0 - x / 6.0 * (1.0 - x / 20.0 * (1.0 - x / 42.0 * (1.0 - x / 72.0))),
+            0.5 * (1.0 - x / 12.0 * (1.0 - x / 30.0 * (1.0 - x / 56.0 * (1.0 - x / 90.0)))),
+            (1.0 - x / 20.0 * (1.0 - x / 42.0 * (1.0 - x / 72.0 * (1.0 - x / 110.0)))) / 6.0,
+        )
+    } else {
+        let th = th2.sqrt();
+        let (sin, cos) = th.sin_cos();
+        (sin / th, (1.0 - cos) / th2, (th - sin) / (th2 * th))
+    };
+    let wp = w.cross(p);
+    let wu = w.cross(&u);
+    p + wp * s + w.cross(&wp) * a + u + wu * a + w.cross(&wu) * b
+}
+
 /// `log(T)`: the twist whose exponential is `T` (inverse of [`exp`]).
 pub fn log(t: &Isometry3<f64>) -> Vector6<f64> {
     let w = t.rotation.scaled_axis();
@@ -64,6 +96,19 @@ mod tests {
         let xi = Vector6::new(0.1, -0.2, 0.3, 1.0, -2.0, 0.5);
         let back = log(&exp(&xi));
         assert!((back - xi).norm() < 1e-9, "{back:?}");
+    }
+
+    #[test]
+    fn exp_apply_matches_exp() {
+        let xi = Vector6::new(0.3, -0.2, 0.9, 1.5, -0.4, 0.2);
+        let p = Vector3::new(12.0, -7.5, 1.25);
+        // Both sides of the series' limit (|omega| is 0.97 rad/s), and a negative time.
+        for t in [0.0, 1e-9, 1e-7, 1e-4, 0.03, 0.1, 0.102, 0.11, 1.0, -0.05] {
+            let want = (exp(&(xi * t)) * nalgebra::Point3::from(p)).coords;
+            let got = exp_apply(&xi, t, &p);
+            assert!((got - want).norm() < 1e-13, "t {t}: {got:?} vs {want:?}");
+        }
+        assert_eq!(exp_apply(&Vector6::zeros(), 0.1, &p), p);
     }
 
     #[test]

@@ -87,7 +87,7 @@ fn kitti_first_frames_within_bounds() {
             "frame {i}: {:?}",
             out.diagnostics
         );
-        assert!(!out.map_cloud.is_empty());
+        assert!(!slam.map_cloud().is_empty());
         est.push(out.pose_map_lidar);
     }
     let e = slam::trajectory_errors(&est, &gt);
