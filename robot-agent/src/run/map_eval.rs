@@ -138,6 +138,8 @@ pub struct MapEvalReport {
     /// The pose graph's work (zero when `[graph] enabled` is false): keyframes, GNSS factors,
     /// loops, optimisations, map rebuilds and the sweeps kept for them.
     pub graph: GraphReport,
+    /// The graph's keyframes against the truth: live pose when made, graph pose at the end.
+    pub graph_keyframes: super::graph_eval::GraphKeyframes,
     /// The wrong cells themselves (global lattice index, kind), for drawing.
     #[serde(skip)]
     pub error_cells: Vec<(i64, i64, ErrorKind)>,
@@ -213,6 +215,9 @@ pub struct GraphReport {
     pub map_rebuilds: u64,
     /// Sweeps kept for rebuilding at the end.
     pub kept_sweeps: usize,
+    /// Loop searches per outcome: no usable descriptor, no candidate close enough, ICP failed,
+    /// ICP fit too poor.
+    pub loop_rejections: [usize; 4],
 }
 
 /// What went wrong in one cell.
@@ -256,6 +261,30 @@ pub struct MapEvalProgress {
     pub t_s: f64,
     /// Share of the drive done (by vertices passed), 0..1.
     pub done: f64,
+}
+
+/// Records the truth and the live pose when the graph has just made a keyframe.
+fn log_keyframe(rig: &Rig, log: &mut super::graph_eval::KeyframeLog) {
+    let Some(g) = rig.agent.localiser().graph() else {
+        return;
+    };
+    let kfs = g.graph().keyframes();
+    if kfs.len() <= log.len() {
+        return;
+    }
+    let Some(k) = kfs.last() else {
+        return;
+    };
+    let (Some(truth), Some(live)) = (
+        rig.sim.truth_pose_at(k.stamp_s),
+        rig.agent.localiser().pose_at_scan(),
+    ) else {
+        return;
+    };
+    // Keyframes are made one per sweep at most: the log stays in step with the graph.
+    while log.len() < kfs.len() {
+        log.push(truth, live.iso);
+    }
 }
 
 /// Drives the scenario's `[drive]` with the agent running; returns the scores and the map.
@@ -302,6 +331,7 @@ pub fn run(
         ..MapEvalReport::default()
     };
     let mut walker_trace: Vec<(f64, f64)> = Vec::new();
+    let mut keyframe_log = super::graph_eval::KeyframeLog::default();
     let mut last = rig.sim.truth_pose2();
     let mut last_progress = 0.0;
     let n_vertices = drive.points.len().max(1) as f64;
@@ -324,6 +354,9 @@ pub fn run(
             {
                 walker_trace.push((wk.x_m, wk.y_m));
             }
+        }
+        if ev.scan {
+            log_keyframe(&rig, &mut keyframe_log);
         }
         if let Some(e) = write_error.borrow_mut().take() {
             return Err(e);
@@ -371,7 +404,22 @@ pub fn run(
             optimisations: g.optimisations,
             map_rebuilds,
             kept_sweeps,
+            loop_rejections: [
+                g.loop_no_descriptor,
+                g.loop_no_candidate,
+                g.loop_icp_failed,
+                g.loop_poor_fit,
+            ],
         };
+    }
+    if let Some(g) = rig.agent.localiser().graph() {
+        let poses: Vec<_> = g
+            .graph()
+            .keyframes()
+            .iter()
+            .map(|k| (k.stamp_s, k.pose))
+            .collect();
+        rep.graph_keyframes = keyframe_log.score(&poses);
     }
     rep.map_digest = common::grid::map_digest(&mapper.tiles());
     let Rig { agent, .. } = rig;
