@@ -53,19 +53,26 @@ pub struct KeyframeLog {
 }
 
 impl KeyframeLog {
-    /// Keyframes recorded so far.
-    pub fn len(&self) -> usize {
-        self.seen.len()
-    }
-
-    /// Whether none was recorded.
-    pub fn is_empty(&self) -> bool {
-        self.seen.is_empty()
-    }
-
-    /// Records the next keyframe: its true pose and the live estimate at its stamp.
-    pub fn push(&mut self, truth: Isometry3<f64>, live: Isometry3<f64>) {
-        self.seen.push((truth, live));
+    /// After a sweep: when the graph has just made a keyframe, records the true pose at its
+    /// stamp and the live estimate.
+    pub fn record(&mut self, rig: &super::Rig) {
+        let Some(g) = rig.agent.localiser().graph() else {
+            return;
+        };
+        let kfs = g.graph().keyframes();
+        let Some(k) = kfs.last().filter(|_| kfs.len() > self.seen.len()) else {
+            return;
+        };
+        let (Some(truth), Some(live)) = (
+            rig.sim.truth_pose_at(k.stamp_s),
+            rig.agent.localiser().pose_at_scan(),
+        ) else {
+            return;
+        };
+        // A keyframe is made per sweep at most: the log stays in step with the graph.
+        while self.seen.len() < kfs.len() {
+            self.seen.push((truth, live.iso));
+        }
     }
 
     /// Scores the graph's final keyframe poses (`(stamp, pose)`, oldest first, in the order

@@ -263,30 +263,6 @@ pub struct MapEvalProgress {
     pub done: f64,
 }
 
-/// Records the truth and the live pose when the graph has just made a keyframe.
-fn log_keyframe(rig: &Rig, log: &mut super::graph_eval::KeyframeLog) {
-    let Some(g) = rig.agent.localiser().graph() else {
-        return;
-    };
-    let kfs = g.graph().keyframes();
-    if kfs.len() <= log.len() {
-        return;
-    }
-    let Some(k) = kfs.last() else {
-        return;
-    };
-    let (Some(truth), Some(live)) = (
-        rig.sim.truth_pose_at(k.stamp_s),
-        rig.agent.localiser().pose_at_scan(),
-    ) else {
-        return;
-    };
-    // Keyframes are made one per sweep at most: the log stays in step with the graph.
-    while log.len() < kfs.len() {
-        log.push(truth, live.iso);
-    }
-}
-
 /// Drives the scenario's `[drive]` with the agent running; returns the scores and the map.
 pub fn run(
     scenario: &sim::Scenario,
@@ -356,7 +332,7 @@ pub fn run(
             }
         }
         if ev.scan {
-            log_keyframe(&rig, &mut keyframe_log);
+            keyframe_log.record(&rig);
         }
         if let Some(e) = write_error.borrow_mut().take() {
             return Err(e);
