@@ -138,6 +138,8 @@ pub struct MapEvalReport {
     /// The pose graph's work (zero when `[graph] enabled` is false): keyframes, GNSS factors,
     /// loops, optimisations, map rebuilds and the sweeps kept for them.
     pub graph: GraphReport,
+    /// The graph's keyframes against the truth: live pose when made, graph pose at the end.
+    pub graph_keyframes: super::graph_eval::GraphKeyframes,
     /// The wrong cells themselves (global lattice index, kind), for drawing.
     #[serde(skip)]
     pub error_cells: Vec<(i64, i64, ErrorKind)>,
@@ -213,6 +215,9 @@ pub struct GraphReport {
     pub map_rebuilds: u64,
     /// Sweeps kept for rebuilding at the end.
     pub kept_sweeps: usize,
+    /// Loop searches per outcome: no usable descriptor, no candidate close enough, ICP failed,
+    /// ICP fit too poor.
+    pub loop_rejections: [usize; 4],
 }
 
 /// What went wrong in one cell.
@@ -302,6 +307,7 @@ pub fn run(
         ..MapEvalReport::default()
     };
     let mut walker_trace: Vec<(f64, f64)> = Vec::new();
+    let mut keyframe_log = super::graph_eval::KeyframeLog::default();
     let mut last = rig.sim.truth_pose2();
     let mut last_progress = 0.0;
     let n_vertices = drive.points.len().max(1) as f64;
@@ -324,6 +330,9 @@ pub fn run(
             {
                 walker_trace.push((wk.x_m, wk.y_m));
             }
+        }
+        if ev.scan {
+            keyframe_log.record(&rig);
         }
         if let Some(e) = write_error.borrow_mut().take() {
             return Err(e);
@@ -371,7 +380,22 @@ pub fn run(
             optimisations: g.optimisations,
             map_rebuilds,
             kept_sweeps,
+            loop_rejections: [
+                g.loop_no_descriptor,
+                g.loop_no_candidate,
+                g.loop_icp_failed,
+                g.loop_poor_fit,
+            ],
         };
+    }
+    if let Some(g) = rig.agent.localiser().graph() {
+        let poses: Vec<_> = g
+            .graph()
+            .keyframes()
+            .iter()
+            .map(|k| (k.stamp_s, k.pose))
+            .collect();
+        rep.graph_keyframes = keyframe_log.score(&poses);
     }
     rep.map_digest = common::grid::map_digest(&mapper.tiles());
     let Rig { agent, .. } = rig;

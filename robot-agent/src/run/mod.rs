@@ -8,6 +8,7 @@
 pub mod bag_play;
 pub mod convert;
 pub mod gnss_sources;
+pub mod graph_eval;
 pub mod io_config;
 pub mod live;
 pub mod map_eval;

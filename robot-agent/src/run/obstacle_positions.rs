@@ -31,7 +31,6 @@ pub struct ObstaclePositions {
     /// Mean distance of the objects' cell centres from the true surface, metres.
     pub mean_surface_distance_m: f64,
     /// Per found object: x, y (truth, metres), centroid error (metres), cells.
-    #[serde(skip)]
     pub per_object: Vec<(f64, f64, f64, usize)>,
 }
 

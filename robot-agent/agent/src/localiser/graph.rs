@@ -13,7 +13,7 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use rand::SeedableRng;
 use sensing::Point;
 use slam::config::FilterConfig;
-use slam::graph::{GraphConfig, KeyframeSelector, PoseGraph};
+use slam::graph::{GraphConfig, KeyframeSelector, LoopRejection, PoseGraph};
 use std::sync::Arc;
 
 /// What the graph did with one sweep.
@@ -38,6 +38,15 @@ pub struct GraphStats {
     pub loops: usize,
     /// Optimisations run.
     pub optimisations: usize,
+    /// Loop searches that found no usable descriptor on the keyframe (too few points, or a
+    /// nearly empty descriptor: open field).
+    pub loop_no_descriptor: usize,
+    /// Loop searches with no stored place within `place_max_distance`.
+    pub loop_no_candidate: usize,
+    /// Candidates whose verification ICP failed.
+    pub loop_icp_failed: usize,
+    /// Candidates whose ICP converged with too few inliers or too loose a fit.
+    pub loop_poor_fit: usize,
 }
 
 /// The graph and what feeds it.
@@ -51,6 +60,9 @@ pub struct GraphLocaliser {
     pending_fix: Option<(f64, Vector3<f64>)>,
     /// Time of the fix behind the newest GNSS factor.
     last_factor_fix_s: Option<f64>,
+    /// The previous sweep: (stamp, SLAM position), for the velocity that carries a fix from
+    /// its own time to the keyframe's.
+    prev_scan: Option<(f64, Vector3<f64>)>,
     stats: GraphStats,
 }
 
@@ -64,6 +76,7 @@ impl GraphLocaliser {
             map_from_slam0: None,
             pending_fix: None,
             last_factor_fix_s: None,
+            prev_scan: None,
             stats: GraphStats::default(),
         })
     }
@@ -105,6 +118,13 @@ impl GraphLocaliser {
         map_from_slam: &Isometry3<f64>,
     ) -> GraphStep {
         let mut step = GraphStep::default();
+        let p_slam = slam_pose.translation.vector;
+        // SLAM's velocity over the last sweep interval (slam frame); none across a gap.
+        let v_slam = self
+            .prev_scan
+            .filter(|(t, _)| stamp_s > *t && stamp_s - t <= 1.0)
+            .map(|(t, p)| (p_slam - p) / (stamp_s - t));
+        self.prev_scan = Some((stamp_s, p_slam));
         if !self.selector.accept(
             slam_pose,
             self.cfg.keyframe_min_travel_m,
@@ -122,6 +142,13 @@ impl GraphLocaliser {
         let mut optimise = false;
         if let Some((t_fix, p)) = self.pending_fix {
             if (stamp_s - t_fix).abs() <= self.cfg.gnss_max_age_s {
+                // The fix is where the robot was at its own time, not at the sweep's stamp
+                // (a 10 Hz receiver's newest fix is up to a sweep period off it): carried to
+                // the keyframe's time along SLAM's velocity. Left as it was, the offset is a
+                // bias along the direction of travel (8 cm at 0.8 m/s and 0.1 s) that the
+                // cm-tight factors would write into every keyframe and the rebuilt map.
+                let v = v_slam.map_or_else(Vector3::zeros, |v| map_from_slam0.rotation * v);
+                let p = p + v * (stamp_s - t_fix);
                 // RTK back after an outage: the drifted stretch is pulled back by the graph.
                 optimise |= self
                     .last_factor_fix_s
@@ -137,10 +164,35 @@ impl GraphLocaliser {
                 self.pending_fix = None;
             }
         }
-        if self.graph.detect_loop(kf).is_ok() {
-            self.stats.loops += 1;
-            step.loop_closed = true;
-            optimise = true;
+        match self.graph.detect_loop(kf) {
+            Ok(lc) => {
+                tracing::info!(
+                    "pose graph: loop {} -> {} (descriptor {:.3}, inliers {:.2}, rms {:.3} m)",
+                    lc.from,
+                    lc.to,
+                    lc.descriptor_distance,
+                    lc.inlier_ratio,
+                    lc.rms_m
+                );
+                self.stats.loops += 1;
+                step.loop_closed = true;
+                optimise = true;
+            }
+            Err(LoopRejection::NoDescriptor) => self.stats.loop_no_descriptor += 1,
+            Err(LoopRejection::NoCandidate) => self.stats.loop_no_candidate += 1,
+            Err(LoopRejection::IcpFailed(st)) => {
+                tracing::debug!("pose graph: loop candidate at keyframe {kf}: ICP {st:?}");
+                self.stats.loop_icp_failed += 1;
+            }
+            Err(LoopRejection::PoorFit {
+                inlier_ratio,
+                rms_m,
+            }) => {
+                tracing::debug!(
+                    "pose graph: loop candidate at keyframe {kf}: inliers {inlier_ratio:.2}, rms {rms_m:.3} m"
+                );
+                self.stats.loop_poor_fit += 1;
+            }
         }
         if optimise {
             self.graph.optimise();
@@ -228,5 +280,37 @@ mod tests {
         assert_eq!(st.loops, 0);
         // A keyframe every 3 m (two 1 m steps fall a hair short of the 2 m), RTK on 120 m of 200.
         assert!(st.keyframes >= 60 && st.gnss_factors >= 30, "{st:?}");
+    }
+
+    #[test]
+    fn fixes_newer_than_the_sweep_are_carried_back_to_its_stamp() {
+        // 0.8 m/s east, a sweep every 0.1 s; the receiver's newest fix is always the one at the
+        // sweep's end (0.1 s after its stamp, 8 cm further on). SLAM is exact; RTK is lost
+        // between 40 s and 60 s, so the graph optimises when it returns. Taken at face value
+        // the fixes would pull every keyframe 8 cm forward.
+        let cfg = GraphConfig {
+            enabled: true,
+            ..GraphConfig::default()
+        };
+        let mut g = GraphLocaliser::new(&cfg).expect("enabled");
+        let anchor = Isometry3::identity();
+        let v = 0.8;
+        let mut optimised = false;
+        for i in 0..=900 {
+            let t = i as f64 * 0.1;
+            if !(40.0..60.0).contains(&t) {
+                g.on_fix(t + 0.1, Vector3::new(v * (t + 0.1), 0.0, 0.0));
+            }
+            let pose = se3::from_xyz_rpy([v * t, 0.0, 0.0], [0.0; 3]);
+            optimised |= g
+                .on_scan(t, &pose, &[], &Isometry3::identity(), &anchor)
+                .map_from_slam
+                .is_some();
+        }
+        assert!(optimised, "RTK came back: optimised");
+        for k in g.graph().keyframes() {
+            let along = k.pose.translation.x - v * k.stamp_s;
+            assert!(along.abs() < 0.02, "keyframe at {} s: {along} m", k.stamp_s);
+        }
     }
 }

@@ -355,6 +355,16 @@ impl Localiser {
         self.graph.as_ref().map(|g| g.stats())
     }
 
+    /// The pose at the last sweep's stamp, as localised then.
+    pub fn pose_at_scan(&self) -> Option<PoseMap> {
+        self.at_scan
+    }
+
+    /// The pose graph, when it runs (evaluation: its keyframes against the truth).
+    pub fn graph(&self) -> Option<&graph::GraphLocaliser> {
+        self.graph.as_ref()
+    }
+
     /// Moves the map frame's anchoring by `delta`: the SLAM anchor, the odometry frame, the
     /// last pose and the stored IMU samples all follow.
     fn move_frame(&mut self, delta: &Isometry3<f64>) {

@@ -63,6 +63,9 @@ pub struct GraphConfig {
     pub place_max_distance: f64,
     /// Keyframes younger than this are not loop candidates, seconds.
     pub loop_exclude_recent_s: f64,
+    /// Besides the descriptor's candidate, the nearest older keyframe by the graph's own poses
+    /// within this distance is verified too, from their relative pose, metres (0: off).
+    pub loop_search_radius_m: f64,
     /// Verification ICP: matching distance of the coarse pass, metres (the fine pass uses a
     /// third of it).
     pub loop_icp_max_match_dist_m: f64,
@@ -120,6 +123,7 @@ impl Default for GraphConfig {
             place_candidates: 10,
             place_max_distance: 0.3,
             loop_exclude_recent_s: 30.0,
+            loop_search_radius_m: 5.0,
             loop_icp_max_match_dist_m: 3.0,
             loop_max_offset_m: 8.0,
             loop_min_inlier_ratio: 0.5,
@@ -166,7 +170,7 @@ pub struct LoopClosure {
     pub to: usize,
     /// Measured `from<-to`.
     pub measured: Isometry3<f64>,
-    /// Scan Context distance.
+    /// Scan Context distance (NaN when a keyframe has no descriptor).
     pub descriptor_distance: f64,
     /// ICP inlier share.
     pub inlier_ratio: f64,
@@ -330,42 +334,99 @@ impl PoseGraph {
         });
     }
 
-    /// Looks for a place keyframe `kf` revisits (Scan Context), verifies it by ICP and adds
-    /// the loop factor when it holds. Does not optimise.
+    /// Looks for a place keyframe `kf` revisits and adds the loop factor when ICP verifies it.
+    /// Two candidates: the best Scan Context match (finds a place however far the poses have
+    /// drifted), then the nearest older keyframe by the graph's own poses within
+    /// `loop_search_radius_m` (finds the revisit the descriptor misses: in an open, repetitive
+    /// world the best descriptor match is often another place). Does not optimise. The error
+    /// is why the last candidate failed.
     pub fn detect_loop(&mut self, kf: usize) -> Result<LoopClosure, LoopRejection> {
         let Some(k) = self.keyframes.get(kf) else {
             return Err(LoopRejection::NoDescriptor);
         };
-        let (Some(desc), Some(cloud)) = (&k.descriptor, &k.cloud) else {
+        let Some(cloud) = k.cloud.clone() else {
             return Err(LoopRejection::NoDescriptor);
         };
-        if desc.occupancy() < self.cfg.place_min_occupancy {
-            return Err(LoopRejection::NoDescriptor);
-        }
-        let cloud = Arc::clone(cloud);
-        let m = self
-            .places
-            .query(
+        let before_s = k.stamp_s - self.cfg.loop_exclude_recent_s;
+        let mut why = LoopRejection::NoDescriptor;
+        let mut tried = None;
+        let descriptor = k
+            .descriptor
+            .as_ref()
+            .filter(|d| d.occupancy() >= self.cfg.place_min_occupancy);
+        if let Some(desc) = descriptor {
+            why = LoopRejection::NoCandidate;
+            let m = self.places.query(
                 desc,
-                k.stamp_s - self.cfg.loop_exclude_recent_s,
+                before_s,
                 self.cfg.place_candidates,
                 self.cfg.place_max_distance,
-            )
-            .ok_or(LoopRejection::NoCandidate)?;
-        let Some(target) = self.keyframes[m.id].cloud.clone() else {
+            );
+            if let Some(m) = m {
+                tried = Some(m.id);
+                let init = Isometry3::from_parts(
+                    Default::default(),
+                    UnitQuaternion::from_euler_angles(0.0, 0.0, m.yaw_rad),
+                );
+                match self.verify_with(m.id, kf, &cloud, &init, m.distance) {
+                    Ok(c) => return Ok(c),
+                    Err(e) => why = e,
+                }
+            }
+        }
+        if let Some(j) = self
+            .nearest_older(kf, before_s)
+            .filter(|j| Some(*j) != tried)
+        {
+            let init = self.keyframes[j].pose.inverse() * self.keyframes[kf].pose;
+            let distance = self.keyframes[kf]
+                .descriptor
+                .as_ref()
+                .zip(self.keyframes[j].descriptor.as_ref())
+                .map_or(f64::NAN, |(a, b)| a.distance(b).0);
+            match self.verify_with(j, kf, &cloud, &init, distance) {
+                Ok(c) => return Ok(c),
+                Err(e) => why = e,
+            }
+        }
+        Err(why)
+    }
+
+    /// The older keyframe (stamp before `before_s`, with a cloud) nearest to `kf` by the
+    /// optimised poses, within `loop_search_radius_m`.
+    fn nearest_older(&self, kf: usize, before_s: f64) -> Option<usize> {
+        let r = self.cfg.loop_search_radius_m;
+        let p = self.keyframes.get(kf)?.pose.translation.vector;
+        self.keyframes
+            .iter()
+            .enumerate()
+            .take_while(|(_, k)| k.stamp_s < before_s)
+            .filter(|(_, k)| k.cloud.is_some())
+            .map(|(j, k)| (j, (k.pose.translation.vector - p).norm()))
+            .filter(|&(_, d)| d <= r)
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(j, _)| j)
+    }
+
+    /// Verifies `from` (older) against `to` from `init` = `from<-to` and adds the loop factor.
+    fn verify_with(
+        &mut self,
+        from: usize,
+        to: usize,
+        cloud: &OrientedCloud,
+        init: &Isometry3<f64>,
+        descriptor_distance: f64,
+    ) -> Result<LoopClosure, LoopRejection> {
+        let Some(target) = self.keyframes[from].cloud.clone() else {
             return Err(LoopRejection::NoDescriptor);
         };
-        let init = Isometry3::from_parts(
-            Default::default(),
-            UnitQuaternion::from_euler_angles(0.0, 0.0, m.yaw_rad),
-        );
-        let (measured, inlier_ratio, rms_m) = verify_loop(&cloud, &target, &init, &self.cfg)?;
-        self.add_loop(m.id, kf, measured);
+        let (measured, inlier_ratio, rms_m) = verify_loop(cloud, &target, init, &self.cfg)?;
+        self.add_loop(from, to, measured);
         Ok(LoopClosure {
-            from: m.id,
-            to: kf,
+            from,
+            to,
             measured,
-            descriptor_distance: m.distance,
+            descriptor_distance,
             inlier_ratio,
             rms_m,
         })
