@@ -65,6 +65,32 @@ fn a_far_glimpse_of_a_known_faces_returns_does_not_replace_a_close_view() {
     );
 }
 
+/// The same far glimpse at the end of a steady drive away (one sweep per second, each its own
+/// evidence epoch, from 2.5 m out to 13 m): the close view is still the yardstick, not the
+/// epochs the drive left behind, each a metre farther than the one before.
+#[test]
+fn a_close_view_does_not_creep_out_with_the_robot_driving_away() {
+    let mut m = Mapper::new(Config::default()).unwrap();
+    let front = m.lattice().cell_of(0.1, -0.1);
+    for k in 0..=10 {
+        let y = -2.5 - f64::from(k) * 1.05;
+        let mut pts = strip_points(if k == 0 { 0.05 } else { 0.1 });
+        if k >= 8 {
+            for x in [0.03, 0.08, 0.13, 0.18] {
+                pts.push([x, -0.02, 0.09]);
+            }
+        }
+        m.update_points(pts, &robot_at(0.0, y), f64::from(k), Evidence::Scan)
+            .unwrap();
+    }
+    let (_, top) = m.height_range(front.0, front.1).unwrap();
+    assert!(
+        top < 0.02,
+        "the close view crept out and the far glimpse replaced it: {}",
+        m.describe(front.0, front.1)
+    );
+}
+
 /// Seen empty from 2.5 m, then from 11 m (still within the processing distance, far beyond the
 /// close view): a 0.6 m tall thing (a person, a bag) that appears a metre in front of the strip
 /// after the close view stands above anything its neighbourhood held, so it is news and becomes

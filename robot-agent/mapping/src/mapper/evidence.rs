@@ -196,8 +196,11 @@ impl Mapper {
             // seen at 3 m). Changes are still caught: things that went by free space, things
             // that came by the far view showing points higher (or lower) than anything the cell
             // and its neighbours held, anything once the close view is `evidence_stale_s` old.
+            // Against the closest view the cell ever took (since a wipe), not the held epochs':
+            // as the robot drives away each epoch is a little farther than the one before and
+            // passes, and the close view would creep out to 12 m one epoch at a time.
             let far = self.data(cx, cy).is_some_and(|d| {
-                let best = d.cur_range_m.min(d.prev_range_m);
+                let best = d.seen_range_m.min(d.cur_range_m).min(d.prev_range_m);
                 kind == Evidence::Scan
                     && d.cur.n > 0
                     && range_m > far_factor * best + 1.0
@@ -248,6 +251,7 @@ impl Mapper {
                         }
                         d.cur = d.cur.merged(&add);
                         d.cur_range_m = d.cur_range_m.min(range_m);
+                        d.seen_range_m = d.seen_range_m.min(range_m);
                     }
                     add.n > 0
                 }
