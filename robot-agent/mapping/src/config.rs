@@ -101,8 +101,8 @@ pub struct Config {
 
     /// Points of a sweep are ignored for a cell that was seen from less than
     /// 1/`far_evidence_factor` of today's distance (minus 1 m) within the last
-    /// `evidence_stale_s`, unless they stand higher (or lie lower) than anything the cell held by
-    /// `max_step_m`: a far glimpse is not allowed to replace a close look, only to show what is
+    /// `evidence_stale_s`, unless they stand higher (or lie lower) than anything the cell and its
+    /// 8 neighbours held by `max_step_m`: a far glimpse is not allowed to replace a close look, only to show what is
     /// new (what went is shown by free space).
     pub far_evidence_factor: f64,
     /// After this long without accepted evidence a cell takes whatever comes, seconds.

@@ -32,6 +32,8 @@ pub mod render;
 pub mod synth;
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_far_view;
 
 pub use classify::Class;
 pub use config::{Config, ConfigError, IsolatedPair};

@@ -95,6 +95,10 @@ pub(super) struct CellData {
     /// Closest robot distance each epoch's evidence was seen from, metres.
     pub(super) cur_range_m: f32,
     pub(super) prev_range_m: f32,
+    /// Closest robot distance any evidence the cell holds or held since it was last wiped was
+    /// accepted from, metres: the far-view rule's yardstick. Not the epochs' own distances, which
+    /// creep outwards with the robot as it drives away, one accepted epoch after the other.
+    pub(super) seen_range_m: f32,
     /// Session time evidence was last accepted into the cell, seconds.
     pub(super) accepted_s: f32,
     /// Closest robot distance from which this cell was judged a drop-off, metres.
@@ -129,6 +133,7 @@ impl Default for CellData {
             prev: Moments::default(),
             cur_range_m: f32::INFINITY,
             prev_range_m: f32::INFINITY,
+            seen_range_m: f32::INFINITY,
             accepted_s: f32::NEG_INFINITY,
             neg_range_m: f32::INFINITY,
             class_range_m: f32::INFINITY,

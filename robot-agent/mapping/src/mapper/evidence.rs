@@ -191,27 +191,26 @@ impl Mapper {
             let far_factor = self.cfg.far_evidence_factor as f32;
             let stale_s = self.cfg.evidence_stale_s as f32;
             let grows = self.cfg.max_step_m as f32;
-            let d = self.data_mut(cx, cy);
             // A cell seen well from close by keeps that view against much poorer ones from far
             // away (the moving vantage would otherwise let a sparse far glimpse replace a curb
             // seen at 3 m). Changes are still caught: things that went by free space, things
-            // that came by the far view showing points higher than the cell held, anything once
-            // the close view is `evidence_stale_s` old.
-            let best = d.cur_range_m.min(d.prev_range_m);
-            // Unless the far view shows something new: standing up above what the cell held, or a
-            // surface lower than it (a cover gone from a hole).
-            let incoming = low.merged(&high);
-            let held = d.evidence();
-            let news = incoming.zmax > held.zmax + grows || incoming.zmin < held.zmin - grows;
-            let far = kind == Evidence::Scan
-                && d.cur.n > 0
-                && range_m > far_factor * best + 1.0
-                && !news
-                && (t_s as f32) - d.accepted_s < stale_s;
+            // that came by the far view showing points higher (or lower) than anything the cell
+            // and its neighbours held, anything once the close view is `evidence_stale_s` old.
+            // Against the closest view the cell ever took (since a wipe), not the held epochs':
+            // as the robot drives away each epoch is a little farther than the one before and
+            // passes, and the close view would creep out to 12 m one epoch at a time.
+            let far = self.data(cx, cy).is_some_and(|d| {
+                let best = d.seen_range_m.min(d.cur_range_m).min(d.prev_range_m);
+                kind == Evidence::Scan
+                    && d.cur.n > 0
+                    && range_m > far_factor * best + 1.0
+                    && (t_s as f32) - d.accepted_s < stale_s
+            }) && !self.far_news(cx, cy, &low.merged(&high), grows);
             if far {
                 rep.far_skipped += 1;
                 continue;
             }
+            let d = self.data_mut(cx, cy);
             d.accepted_s = t_s as f32;
             let changed = match kind {
                 Evidence::MapCloud => {
@@ -252,6 +251,7 @@ impl Mapper {
                         }
                         d.cur = d.cur.merged(&add);
                         d.cur_range_m = d.cur_range_m.min(range_m);
+                        d.seen_range_m = d.seen_range_m.min(range_m);
                     }
                     add.n > 0
                 }
@@ -271,6 +271,29 @@ impl Mapper {
             }
         }
         self.win.touched = touched;
+    }
+
+    /// Whether a far view's points for cell `(cx, cy)` show something new: a top more than
+    /// `grows_m` above the highest point the cell and its 8 neighbours hold, or a bottom more than
+    /// `grows_m` below their lowest (a cover gone from a hole). Against the neighbourhood, not the
+    /// cell alone: from afar, a few returns off a known step's face land in the cell in front of
+    /// it (the far view's few-centimetre pose and beam offsets), which stand above that cell's
+    /// own top but not above the step it belongs to; a person or a car stepping in stands above
+    /// both.
+    fn far_news(&self, cx: i64, cy: i64, incoming: &Moments, grows_m: f32) -> bool {
+        let (mut top, mut bottom) = (f32::NEG_INFINITY, f32::INFINITY);
+        for dy in -1..=1 {
+            for dx in -1..=1 {
+                if let Some(d) = self.data(cx + dx, cy + dy) {
+                    let e = d.evidence();
+                    if e.n > 0 {
+                        top = top.max(e.zmax);
+                        bottom = bottom.min(e.zmin);
+                    }
+                }
+            }
+        }
+        incoming.zmax > top + grows_m || incoming.zmin < bottom - grows_m
     }
 
     /// Step 6a, proprioception: the footprint is traversable ground at the robot's height. Cells

@@ -199,6 +199,7 @@ impl Mapper {
                     d.pending = Moments::default();
                     d.cur_range_m = f32::INFINITY;
                     d.prev_range_m = f32::INFINITY;
+                    d.seen_range_m = f32::INFINITY;
                     d.class_range_m = f32::INFINITY;
                     d.far_wiped = far;
                     rep.cleared_cells += 1;
