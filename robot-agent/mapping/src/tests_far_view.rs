@@ -31,12 +31,8 @@ fn robot_at(x_m: f64, y_m: f64) -> RobotPose {
     }
 }
 
-/// Seen from 2.5 m, then from 13 m with a few returns off the strip's face landing in the cells
-/// in front of it (what a few centimetres of pose or beam offset do at that range): the close
-/// view of those cells is kept, because the face stands no higher than the strip the cells'
-/// neighbours already hold.
-#[test]
-fn a_far_glimpse_of_a_known_faces_returns_does_not_replace_a_close_view() {
+/// A mapper that has seen the strip from 2.5 m (every 5 cm), at t = 0 s.
+fn seen_close() -> Mapper {
     let mut m = Mapper::new(Config::default()).unwrap();
     m.update_points(
         strip_points(0.05),
@@ -45,14 +41,29 @@ fn a_far_glimpse_of_a_known_faces_returns_does_not_replace_a_close_view() {
         Evidence::Scan,
     )
     .unwrap();
+    m
+}
+
+/// A few returns off the strip's face, 9 cm up, landing just in front of it (y = -2 cm).
+fn add_face_glimpse(pts: &mut Vec<[f32; 3]>) {
+    for x in [0.03, 0.08, 0.13, 0.18] {
+        pts.push([x, -0.02, 0.09]);
+    }
+}
+
+/// Seen from 2.5 m, then from 13 m with a few returns off the strip's face landing in the cells
+/// in front of it (what a few centimetres of pose or beam offset do at that range): the close
+/// view of those cells is kept, because the face stands no higher than the strip the cells'
+/// neighbours already hold.
+#[test]
+fn a_far_glimpse_of_a_known_faces_returns_does_not_replace_a_close_view() {
+    let mut m = seen_close();
     let front = m.lattice().cell_of(0.1, -0.1);
     let (_, top) = m.height_range(front.0, front.1).unwrap();
     assert!(top < 0.02, "the close view's front cell top {top}");
 
     let mut far = strip_points(0.1);
-    for x in [0.03, 0.08, 0.13, 0.18] {
-        far.push([x, -0.02, 0.09]);
-    }
+    add_face_glimpse(&mut far);
     let rep = m
         .update_points(far, &robot_at(0.0, -13.0), 5.0, Evidence::Scan)
         .unwrap();
@@ -76,9 +87,7 @@ fn a_close_view_does_not_creep_out_with_the_robot_driving_away() {
         let y = -2.5 - f64::from(k) * 1.05;
         let mut pts = strip_points(if k == 0 { 0.05 } else { 0.1 });
         if k >= 8 {
-            for x in [0.03, 0.08, 0.13, 0.18] {
-                pts.push([x, -0.02, 0.09]);
-            }
+            add_face_glimpse(&mut pts);
         }
         m.update_points(pts, &robot_at(0.0, y), f64::from(k), Evidence::Scan)
             .unwrap();
@@ -97,14 +106,7 @@ fn a_close_view_does_not_creep_out_with_the_robot_driving_away() {
 /// an obstacle although it is only seen from afar.
 #[test]
 fn something_appearing_after_the_close_view_is_picked_up_from_afar() {
-    let mut m = Mapper::new(Config::default()).unwrap();
-    m.update_points(
-        strip_points(0.05),
-        &robot_at(0.0, -2.5),
-        0.0,
-        Evidence::Scan,
-    )
-    .unwrap();
+    let mut m = seen_close();
     let cell = m.lattice().cell_of(1.1, -1.1);
     assert_eq!(m.class(cell.0, cell.1), Class::Traversable);
 

@@ -220,6 +220,43 @@ fn verification_accepts_a_true_loop_and_rejects_a_wrong_one() {
     assert!(wrong.is_err(), "wrong loop accepted: {wrong:?}");
 }
 
+/// Drives the circuit `truth` through the synthetic world `w` with odometry `odom`, a keyframe and
+/// its scan at every pose, and a loop search after each; returns the graph and the loops found.
+fn drive_circuit(
+    cfg: GraphConfig,
+    w: &[[f32; 3]],
+    truth: &[Isometry3<f64>],
+    odom: &[Isometry3<f64>],
+) -> (PoseGraph, Vec<LoopClosure>) {
+    let mut g = PoseGraph::new(cfg);
+    let mut closures = Vec::new();
+    for (i, (t, o)) in truth.iter().zip(odom).enumerate() {
+        let kf = g.add_keyframe(
+            i as f64,
+            *o,
+            Some(oriented(scan(w, t, 40.0, 10 + i as u64))),
+        );
+        if let Ok(c) = g.detect_loop(kf) {
+            closures.push(c);
+        }
+    }
+    (g, closures)
+}
+
+/// The loops include one from the circuit's end back to its start, and every one is a true
+/// revisit (within the keyframe spacing).
+fn assert_true_loops_back_to_the_start(closures: &[LoopClosure], truth: &[Isometry3<f64>]) {
+    let n = truth.len() - 1;
+    assert!(
+        closures.iter().any(|c| c.to == n && c.from <= 1),
+        "no loop back to the start: {closures:?}"
+    );
+    for c in closures {
+        let d = (truth[c.from].translation.vector - truth[c.to].translation.vector).norm();
+        assert!(d < 4.5, "false loop {c:?} ({d} m apart)");
+    }
+}
+
 #[test]
 fn detected_loop_closes_a_drifted_circuit() {
     // A 160 m square circuit through the synthetic world, a keyframe every 4 m with its scan;
@@ -232,29 +269,10 @@ fn detected_loop_closes_a_drifted_circuit() {
         loop_exclude_recent_s: 10.0,
         ..GraphConfig::default()
     };
-    let mut g = PoseGraph::new(cfg);
-    let mut closures = Vec::new();
-    for (i, (t, o)) in truth.iter().zip(&odom).enumerate() {
-        let kf = g.add_keyframe(
-            i as f64,
-            *o,
-            Some(oriented(scan(&w, t, 40.0, 10 + i as u64))),
-        );
-        if let Ok(c) = g.detect_loop(kf) {
-            closures.push(c);
-        }
-    }
+    let (mut g, closures) = drive_circuit(cfg, &w, &truth, &odom);
     let n = truth.len() - 1;
     let before = position_errors(&g, &truth)[n];
-    assert!(
-        closures.iter().any(|c| c.to == n && c.from <= 1),
-        "no loop back to the start: {closures:?}"
-    );
-    for c in &closures {
-        // Every accepted loop is a true revisit (within the keyframe spacing).
-        let d = (truth[c.from].translation.vector - truth[c.to].translation.vector).norm();
-        assert!(d < 4.5, "false loop {c:?} ({d} m apart)");
-    }
+    assert_true_loops_back_to_the_start(&closures, &truth);
     g.optimise();
     let after = position_errors(&g, &truth)[n];
     println!(
@@ -280,32 +298,13 @@ fn a_revisit_the_descriptor_misses_is_found_near_the_graphs_own_pose() {
             loop_search_radius_m: radius_m,
             ..GraphConfig::default()
         };
-        let mut g = PoseGraph::new(cfg);
-        let mut closures = Vec::new();
-        for (i, (t, o)) in truth.iter().zip(&odom).enumerate() {
-            let kf = g.add_keyframe(
-                i as f64,
-                *o,
-                Some(oriented(scan(&w, t, 40.0, 10 + i as u64))),
-            );
-            if let Ok(c) = g.detect_loop(kf) {
-                closures.push(c);
-            }
-        }
-        (g, closures)
+        drive_circuit(cfg, &w, &truth, &odom)
     };
     let (_, none) = run(0.0);
     assert!(none.is_empty(), "the descriptor alone found {none:?}");
     let (mut g, closures) = run(5.0);
     let n = truth.len() - 1;
-    assert!(
-        closures.iter().any(|c| c.to == n && c.from <= 1),
-        "no loop back to the start: {closures:?}"
-    );
-    for c in &closures {
-        let d = (truth[c.from].translation.vector - truth[c.to].translation.vector).norm();
-        assert!(d < 4.5, "false loop {c:?} ({d} m apart)");
-    }
+    assert_true_loops_back_to_the_start(&closures, &truth);
     let before = position_errors(&g, &truth)[n];
     g.optimise();
     let after = position_errors(&g, &truth)[n];
