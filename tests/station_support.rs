@@ -81,6 +81,8 @@ pub struct Station {
     pub ports: Ports,
     /// Its log (stderr).
     pub log: PathBuf,
+    /// From the spawn to its first HTTP answer, and to the stored map being back.
+    pub answered_after: (Duration, Duration),
 }
 
 impl Station {
@@ -90,7 +92,8 @@ impl Station {
     }
 
     /// Starts the station with these Zenoh arguments (e.g. `--pki DIR --zenoh-listen tls/...`)
-    /// and waits until it answers HTTP.
+    /// and waits until it answers HTTP and has put its stored map back (where `/api/health`
+    /// may be read without credentials).
     pub fn start_with(ports: Ports, db: &Path, zenoh_args: &[String]) -> Station {
         let log = db.with_extension(format!("{}.log", ports.http));
         let err = std::fs::File::create(&log).expect("station log");
@@ -108,7 +111,17 @@ impl Station {
         )
         .expect("start operator-station");
         let t0 = Instant::now();
-        while http(ports.http, "GET", "/api/health", "").is_none() {
+        let mut answered = None;
+        let mut ready = || match http(ports.http, "GET", "/api/health", "") {
+            None => false,
+            Some((status, body)) => {
+                answered.get_or_insert_with(|| t0.elapsed());
+                status != 200
+                    || serde_json::from_str::<Value>(&body)
+                        .is_ok_and(|h| h["restore"]["finished"] != Value::Bool(false))
+            }
+        };
+        while !ready() {
             if let Ok(Some(s)) = p.0.try_wait() {
                 panic!("station exited: {s}\n{}", tail(&log, 30));
             }
@@ -120,10 +133,12 @@ impl Station {
             );
             std::thread::sleep(Duration::from_millis(50));
         }
+        let restored = t0.elapsed();
         Station {
             proc: Some(p),
             ports,
             log,
+            answered_after: (answered.unwrap_or(restored), restored),
         }
     }
 

@@ -1493,8 +1493,11 @@ async function refreshHealth() {
     const h = await api("GET", "/api/health");
     state.health = h;
     applyRole(h);
+    const r = h.restore;
+    const restoring = r && !r.finished ? ` · restoring the stored map ${r.done} / ${r.tiles} tiles` : "";
     document.getElementById("footer").textContent =
-      `station ${h.version ?? "?"} · ${h.robots_online} online · ${h.tiles} tiles · ${h.decode_errors} decode errors` + (TOKEN ? " · token" : "");
+      `station ${h.version ?? "?"} · ${h.robots_online} online · ${h.tiles} tiles · ${h.decode_errors} decode errors` +
+      restoring + (TOKEN ? " · token" : "");
   } catch (e) {
     document.getElementById("footer").textContent = `station unreachable: ${e.message}`;
   }

@@ -12,7 +12,7 @@ use std::sync::{mpsc, Arc, Mutex, RwLock};
 use std::time::{Duration, Instant};
 
 use common::command::CommandStamper;
-use common::grid::{decode_tile, Lattice};
+use common::grid::Lattice;
 use common::keys::{self, RobotId, Topic};
 use common::msg::{self, CmdHeader, Datum, Path, Pose, Route, Session, Status};
 use serde_json::json;
@@ -20,7 +20,8 @@ use tokio::sync::broadcast;
 
 use crate::alerts::{AlertConfig, AlertKind, Alerts, Observation};
 use crate::fleet::{Fleet, RateTopic, MAX_PENDING_TILES};
-use crate::merge::{MergeJob, MergeQueue, MergeWorker, MergedMap, TileChange};
+use crate::merge::restore::{restore_rows, RestoreProgress};
+use crate::merge::{default_threads, MergeJob, MergeQueue, MergeWorker, MergedMap, TileChange};
 use crate::missions::runner::{RobotNow, Run, RunAction};
 use crate::missions::Mission;
 use crate::store::{self, DatumRow, RouteRow, SessionRow, StoreOp, StoreWriter};
@@ -157,6 +158,8 @@ pub struct Inner {
     pub datums: Mutex<Datums>,
     /// Merged map.
     pub map: Arc<RwLock<MergedMap>>,
+    /// How far putting the stored merged map back has come (the map is partial until finished).
+    pub restore: Arc<RestoreProgress>,
     /// Overview tiles of the merged map for the browser (rebuilt as the merge changes tiles).
     pub pyramid: Arc<Mutex<crate::pyramid::Pyramid>>,
     /// Live events (JSON text) for WebSocket clients.
@@ -754,21 +757,13 @@ impl Station {
     /// Opens the database (restoring the merged map), the Zenoh session, and starts listening.
     pub async fn start(opts: StationOptions) -> Result<Station, StationError> {
         let store = StoreWriter::start(&opts.db)?;
-        let (map, datums, zone_rows, mission_rows, alert_rows) = {
+        // The merged map's tiles come back on the merge thread (see `first` below); the rest is
+        // small and read here.
+        let (datums, zone_rows, mission_rows, alert_rows) = {
             let c = store::open(&opts.db)?;
-            let mut map = MergedMap::default();
             let mut datums = Datums::default();
             for d in store::datums(&c)? {
                 datums.rows.insert(d.datum_id.clone(), d);
-            }
-            for (datum_id, _, _, version, data) in store::tiles(&c, None)? {
-                match decode_tile(&data) {
-                    Ok(mut t) => {
-                        t.version = version;
-                        map.restore(&datum_id, t);
-                    }
-                    Err(e) => tracing::warn!("stored tile of {datum_id} unreadable: {e}"),
-                }
             }
             let zones: Vec<ZoneRecord> = store::zones(&c)?
                 .iter()
@@ -783,19 +778,47 @@ impl Station {
                 .iter()
                 .filter_map(|j| serde_json::from_str(j).ok())
                 .collect();
-            (map, datums, zones, missions, alerts)
+            (datums, zones, missions, alerts)
         };
-        let map = Arc::new(RwLock::new(map));
+        let map = Arc::new(RwLock::new(MergedMap::default()));
         let (events, _) = broadcast::channel(4096);
         let decode_errors = Arc::new(AtomicU64::new(0));
         let store_tx = store.sender();
         let sink_events = events.clone();
         let sink_store = Mutex::new(store.sender());
         let pyramid = Arc::new(Mutex::new(crate::pyramid::Pyramid::new()));
-        crate::pyramid::warm_in_background(map.clone(), pyramid.clone());
+        let restore = Arc::new(RestoreProgress::default());
+        let first = {
+            let (db, map, pyramid, restore) = (
+                opts.db.clone(),
+                map.clone(),
+                pyramid.clone(),
+                restore.clone(),
+            );
+            Box::new(move || {
+                let t = Instant::now();
+                match store::open(&db).and_then(|c| store::tiles(&c, None)) {
+                    Ok(rows) => restore_rows(rows, &map, default_threads(), &restore, |d, i| {
+                        crate::pyramid::mark_changed(&pyramid, d, i)
+                    }),
+                    Err(e) => {
+                        tracing::error!("stored map not restored: {e}");
+                        restore.finish();
+                    }
+                }
+                let s = restore.state();
+                tracing::info!(
+                    tiles = s.tiles,
+                    unreadable = s.unreadable,
+                    seconds = t.elapsed().as_secs_f64(),
+                    "stored map restored"
+                );
+                crate::pyramid::warm_in_background(map, pyramid);
+            })
+        };
         let sink_pyramid = pyramid.clone();
         let history_s = opts.map_history_s;
-        let merge = MergeWorker::start(
+        let merge = MergeWorker::start_after(
             map.clone(),
             Box::new(move |ch: TileChange, enc: Vec<u8>| {
                 crate::pyramid::mark_changed(&sink_pyramid, &ch.datum_id, ch.index);
@@ -821,6 +844,7 @@ impl Station {
                 ));
             }),
             decode_errors.clone(),
+            first,
         );
         let session = crate::bus::open(opts.zenoh).await?;
         let start_seq = (now_unix_ms() / 1000) as u32;
@@ -830,6 +854,7 @@ impl Station {
             fleet: Mutex::new(Fleet::default()),
             datums: Mutex::new(datums),
             map,
+            restore,
             pyramid,
             events,
             decode_errors,

@@ -278,7 +278,8 @@ async fn health(State(st): State<AppState>) -> Json<Value> {
         .map(|d| d.tiles.len())
         .sum();
     let mut h = json!({"ok": true, "version": VERSION, "robots_online": online, "tiles": tiles,
-                       "decode_errors": st.inner.decode_errors.load(Ordering::Relaxed)});
+                       "decode_errors": st.inner.decode_errors.load(Ordering::Relaxed),
+                       "restore": st.inner.restore.state()});
     if let (Some(h), Value::Object(role)) = (h.as_object_mut(), st.role.health()) {
         h.extend(role);
     }
@@ -752,7 +753,10 @@ fn goal_context(st: &AppState, robot: &str) -> RobotContext {
             .map(|r| (r.pose.clone(), r.datum_id.clone()))
             .unwrap_or_default()
     };
-    let mapped = datum_id.and_then(|d| {
+    // While the stored map is still coming back its bounds would understate what is mapped and
+    // refuse a good goal; the robot checks the goal against its own map anyway.
+    let restoring = !st.inner.restore.is_finished();
+    let mapped = datum_id.filter(|_| !restoring).and_then(|d| {
         let map = st.inner.map.read().unwrap_or_else(|p| p.into_inner());
         let b = map.datums.get(&d)?.bounds_m()?;
         Some(BoundsM {
@@ -761,7 +765,7 @@ fn goal_context(st: &AppState, robot: &str) -> RobotContext {
         })
     });
     RobotContext {
-        position_m: pose.as_ref().map(|p| (p.x_m, p.y_m)),
+        position_m: pose.as_ref().filter(|_| !restoring).map(|p| (p.x_m, p.y_m)),
         lat_lon_deg: pose.as_ref().and_then(|p| p.lat_lon_deg),
         mapped,
     }

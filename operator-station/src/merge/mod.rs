@@ -17,6 +17,8 @@ use common::grid::{
     cell_order, decode_tile, encode_tile, Cell, CellState, Lattice, Tile, TileIndex,
 };
 
+pub mod restore;
+
 /// Why a tile was not merged.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]
@@ -420,21 +422,45 @@ impl MergeWorker {
         sink: ChangeSink,
         errors: Arc<std::sync::atomic::AtomicU64>,
     ) -> Self {
-        Self::with_threads(map, sink, errors, default_threads())
+        Self::spawn(map, sink, errors, default_threads(), None)
+    }
+
+    /// [`MergeWorker::start`] that runs `first` on the merge thread before any job: jobs queued
+    /// meanwhile wait for it (the stored map is restored this way, see [`restore`]).
+    pub fn start_after(
+        map: Arc<RwLock<MergedMap>>,
+        sink: ChangeSink,
+        errors: Arc<std::sync::atomic::AtomicU64>,
+        first: Box<dyn FnOnce() + Send>,
+    ) -> Self {
+        Self::spawn(map, sink, errors, default_threads(), Some(first))
     }
 
     /// [`MergeWorker::start`] with `threads` decoding threads (at least one: the merge thread).
     pub fn with_threads(
         map: Arc<RwLock<MergedMap>>,
+        sink: ChangeSink,
+        errors: Arc<std::sync::atomic::AtomicU64>,
+        threads: usize,
+    ) -> Self {
+        Self::spawn(map, sink, errors, threads, None)
+    }
+
+    fn spawn(
+        map: Arc<RwLock<MergedMap>>,
         mut sink: ChangeSink,
         errors: Arc<std::sync::atomic::AtomicU64>,
         threads: usize,
+        first: Option<Box<dyn FnOnce() + Send>>,
     ) -> Self {
         let threads = threads.max(1);
         let (tx, rx) = mpsc::channel::<MergeMsg>();
         let thread = std::thread::Builder::new()
             .name("merge".into())
             .spawn(move || {
+                if let Some(first) = first {
+                    first();
+                }
                 let mut stopping = false;
                 while !stopping {
                     let Ok(MergeMsg::Job(first)) = rx.recv() else {
@@ -575,6 +601,66 @@ mod tests {
         let m = map.read().unwrap().clone();
         let ch = changes.lock().unwrap().clone();
         (m, ch, errors.load(std::sync::atomic::Ordering::Relaxed))
+    }
+
+    #[test]
+    fn a_live_tile_queued_during_the_restore_merges_after_it_and_is_stored_whole() {
+        let idx = TileIndex { tx: 4, ty: -2 };
+        let stored = tile(idx.tx, idx.ty, |c, r| {
+            if (c, r) == (3, 0) {
+                cell(CellState::Obstacle, 100, 4, 40)
+            } else {
+                Cell::UNKNOWN
+            }
+        });
+        // The live tile has an older view of the stored cell and news elsewhere.
+        let live = tile(idx.tx, idx.ty, |c, r| match (c, r) {
+            (3, 0) => cell(CellState::Traversable, 50, 4, 0),
+            (9, 9) => cell(CellState::Traversable, 200, 2, 0),
+            _ => Cell::UNKNOWN,
+        });
+        let map = Arc::new(RwLock::new(MergedMap::default()));
+        let stores = Arc::new(std::sync::Mutex::new(Vec::new()));
+        let (go, wait) = mpsc::channel::<()>();
+        let first = {
+            let map = map.clone();
+            let mut stored = stored.clone();
+            Box::new(move || {
+                let _ = wait.recv();
+                stored.version = 5;
+                map.write().unwrap().restore("d0", stored);
+            })
+        };
+        let s2 = stores.clone();
+        let w = MergeWorker::start_after(
+            map.clone(),
+            Box::new(move |ch, enc: Vec<u8>| s2.lock().unwrap().push((ch, enc))),
+            Arc::new(std::sync::atomic::AtomicU64::new(0)),
+            first,
+        );
+        assert!(w.sender().send(MergeJob {
+            datum_id: "d0".into(),
+            robot: "r1".into(),
+            key_index: Some(idx),
+            encoded: encode_tile(&live),
+        }));
+        std::thread::sleep(std::time::Duration::from_millis(50));
+        assert!(
+            map.read().unwrap().datums.is_empty(),
+            "merged before the restore"
+        );
+        go.send(()).unwrap();
+        w.finish();
+        let stores = stores.lock().unwrap();
+        assert_eq!(stores.len(), 1);
+        assert_eq!(stores[0].0.version, 6);
+        // What goes to the store holds the restored cell as well as the news.
+        let written = decode_tile(&stores[0].1).unwrap();
+        assert_eq!(written.cells[3], cell(CellState::Obstacle, 100, 4, 40));
+        assert_eq!(
+            written.cells[9 * 64 + 9],
+            cell(CellState::Traversable, 200, 2, 0)
+        );
     }
 
     #[test]
