@@ -317,3 +317,77 @@ fn a_revisit_the_descriptor_misses_is_found_near_the_graphs_own_pose() {
         "end error {before} -> {after}"
     );
 }
+
+/// What a VLP-16 at `pose` (1.5 m up) sees of `world`: the ground on its eight downward rings
+/// (-15 to -1 deg, 2 deg apart, a return every 0.4 deg), and the objects' points within 0.1 m
+/// of one of its 16 rings' cones, within `range_m`; sensor frame, thinned to the agent's 0.3 m
+/// keyframe voxels, with normals.
+fn ring_scan(world: &[[f32; 3]], pose: &Isometry3<f64>, range_m: f32) -> Arc<OrientedCloud> {
+    let inv = pose.inverse().cast::<f32>();
+    let elev: Vec<f32> = (0..16)
+        .map(|k| (-15.0 + 2.0 * k as f32).to_radians())
+        .collect();
+    let mut out = Vec::new();
+    for p in world {
+        let q = inv * nalgebra::Point3::from(*p);
+        let r = q.coords.xy().norm();
+        if r < range_m && elev.iter().any(|e| (q.z - r * e.tan()).abs() < 0.1) {
+            out.push([q.x, q.y, q.z]);
+        }
+    }
+    for e in elev.iter().filter(|e| **e < 0.0) {
+        let r = 1.5 / -e.tan();
+        if r >= range_m {
+            continue;
+        }
+        for k in 0..900 {
+            let a = (k as f32 * 0.4).to_radians();
+            out.push([r * a.cos(), r * a.sin(), -1.5]);
+        }
+    }
+    oriented(crate::filters::voxel_downsample(&out, 0.3))
+}
+
+#[test]
+fn sparse_ring_scans_a_true_revisit_passes_and_another_place_does_not() {
+    // The failure seen on `loop` with a VLP-16: two sweeps of the same place from 1.4 m apart
+    // hit different ground rings, so ICP pairs well under half of the points even when the fit
+    // is right. The overlap-aware share counts only the structure where the candidate has data.
+    let w = world(4, 200.0, 200);
+    let cfg = GraphConfig::default();
+    let a = pose(0.0, 0.0, 0.2);
+    let b = pose(1.2, -0.8, 0.2 + 0.9);
+    let ca = ring_scan(&w, &a, 40.0);
+    let cb = ring_scan(&w, &b, 40.0);
+    let truth = a.inverse() * b;
+    // The radius search's initial guess: the graph's relative pose, 0.3 m and 2 deg off.
+    let init = truth * se3::from_xyz_rpy([0.3, -0.2, 0.0], [0.0, 0.0, 0.035]);
+    let index = crate::index::KdIndex::build(&ca.points);
+    let mut icp_cfg = crate::config::IcpConfig {
+        max_match_dist_m: crate::config::Auto::Fixed(1.0),
+        min_inlier_ratio: 0.0,
+        ..crate::config::IcpConfig::default()
+    };
+    icp_cfg.max_iterations = 60;
+    let raw = icp::register(&cb, &ca, &index, &truth, &icp_cfg).inlier_ratio;
+    let e = pose(50.0, 40.0, 0.2);
+    let ce = ring_scan(&w, &e, 40.0);
+    let wrong = verify_loop(&cb, &ce, &init, &cfg);
+    println!("another place: {wrong:?}");
+    let (measured, share, rms) = verify_loop(&cb, &ca, &init, &cfg).expect("true revisit");
+    let d = truth.inverse() * measured;
+    println!(
+        "true revisit: ICP inliers {raw:.2}, structure share {share:.2}, rms {rms:.3} m, error {:.3} m",
+        se3::translation_norm(&d)
+    );
+    assert!(se3::translation_norm(&d) < 0.1 && se3::rotation_angle(&d) < 0.01);
+    // Elsewhere, 64 m away, started from the same relative guess (a radius search there
+    // would be a graph that drifted 64 m; the descriptor's candidate is another place too).
+    assert!(
+        matches!(
+            wrong,
+            Err(LoopRejection::PoorFit { .. } | LoopRejection::IcpFailed(_))
+        ),
+        "another place accepted: {wrong:?}"
+    );
+}
