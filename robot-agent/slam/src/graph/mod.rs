@@ -71,19 +71,10 @@ pub struct GraphConfig {
     pub loop_icp_max_match_dist_m: f64,
     /// Verification ICP: the two keyframes may be at most this far apart, metres.
     pub loop_max_offset_m: f64,
-    /// A loop is accepted when at least this share of the reading's structure points (normals
-    /// within 45 deg of horizontal: trunks, walls, cars) that fall where the candidate has data
-    /// (a point within the fine pass's matching distance) lie on the candidate's surface
-    /// (within `loop_inlier_dist_m` of its tangent plane, normals agreeing)...
+    /// A loop is accepted when the ICP explains at least this share of the reading...
     pub loop_min_inlier_ratio: f64,
-    /// ...with a weighted RMS point-to-plane residual at most this, metres...
+    /// ...with a weighted RMS point-to-plane residual at most this, metres.
     pub loop_max_rms_m: f64,
-    /// ...and at least this many structure points in the overlap (an open field cannot be
-    /// verified).
-    pub loop_min_overlap_points: usize,
-    /// Distance from the candidate's tangent plane within which an overlapping point counts as
-    /// on its surface, metres.
-    pub loop_inlier_dist_m: f64,
     /// Loop factor translation sigma, metres.
     pub loop_sigma_trans_m: f64,
     /// Loop factor rotation sigma, radians.
@@ -135,10 +126,8 @@ impl Default for GraphConfig {
             loop_search_radius_m: 5.0,
             loop_icp_max_match_dist_m: 3.0,
             loop_max_offset_m: 8.0,
-            loop_min_inlier_ratio: 0.25,
+            loop_min_inlier_ratio: 0.5,
             loop_max_rms_m: 0.15,
-            loop_min_overlap_points: 50,
-            loop_inlier_dist_m: 0.15,
             loop_sigma_trans_m: 0.1,
             loop_sigma_rot_rad: 0.01,
             loop_cauchy_sigmas: 3.0,
@@ -216,72 +205,13 @@ pub fn verify_loop(
     if !fine.status.is_ok() {
         return Err(LoopRejection::IcpFailed(fine.status));
     }
-    // ICP's own inlier share counts every reading point, also those where the candidate has no
-    // data: two sweeps of a VLP-16 from a few metres apart hit different ground rings, so a
-    // true revisit pairs only 30-41 % of its points (docs/algorithms.md §3.7). What tells a
-    // revisit from another place is whether the structure both see lies on the same surfaces.
-    let (ratio, overlap) = structure_overlap(
-        reading,
-        target,
-        &index,
-        &fine.pose,
-        (cfg.loop_icp_max_match_dist_m / 3.0) as f32,
-        cfg.loop_inlier_dist_m as f32,
-    );
-    if overlap < cfg.loop_min_overlap_points
-        || ratio < cfg.loop_min_inlier_ratio
-        || fine.residual_rms_m > cfg.loop_max_rms_m
-    {
+    if fine.inlier_ratio < cfg.loop_min_inlier_ratio || fine.residual_rms_m > cfg.loop_max_rms_m {
         return Err(LoopRejection::PoorFit {
-            inlier_ratio: ratio,
+            inlier_ratio: fine.inlier_ratio,
             rms_m: fine.residual_rms_m,
         });
     }
-    Ok((fine.pose, ratio, fine.residual_rms_m))
-}
-
-/// Target points looked at around each reading point by [`structure_overlap`].
-const NEIGHBOURS: usize = 5;
-
-/// The overlap-aware fit of `reading` placed at `pose` (`target<-reading`) on `target`: of the
-/// reading's structure points (normals within 45 deg of horizontal) that have a target point
-/// within `overlap_m` (where the target has data), the share within `inlier_m` of that
-/// point's tangent plane with normals within 45 deg of each other; and how many were in the
-/// overlap. Ground is left out: every flat place fits it.
-pub fn structure_overlap(
-    reading: &OrientedCloud,
-    target: &OrientedCloud,
-    index: &KdIndex,
-    pose: &Isometry3<f64>,
-    overlap_m: f32,
-    inlier_m: f32,
-) -> (f64, usize) {
-    let tf = pose.cast::<f32>();
-    let horizontal = std::f32::consts::FRAC_1_SQRT_2;
-    let (mut overlap, mut inliers) = (0usize, 0usize);
-    let mut nn = Vec::with_capacity(1);
-    for (p, n) in reading.points.iter().zip(&reading.normals) {
-        if n[2].abs() > horizontal {
-            continue;
-        }
-        let q = tf * nalgebra::Point3::from(*p);
-        index.knn_within(&[q.x, q.y, q.z], NEIGHBOURS, overlap_m, &mut nn);
-        if nn.is_empty() {
-            continue;
-        }
-        overlap += 1;
-        let m = tf.rotation * nalgebra::Vector3::from(*n);
-        // Any of the few nearest: a sparse sensor's rings cross a face at other heights from
-        // another place, and the nearest return may be on the next face round a corner.
-        let on_surface = nn.iter().any(|&(j, _)| {
-            let (t, tn) = (target.points[j as usize], target.normals[j as usize]);
-            let tn = nalgebra::Vector3::from(tn);
-            let off = nalgebra::Vector3::new(q.x - t[0], q.y - t[1], q.z - t[2]);
-            off.dot(&tn).abs() <= inlier_m && m.dot(&tn).abs() >= horizontal
-        });
-        inliers += usize::from(on_surface);
-    }
-    (inliers as f64 / overlap.max(1) as f64, overlap)
+    Ok((fine.pose, fine.inlier_ratio, fine.residual_rms_m))
 }
 
 /// The graph: keyframes, factors and the place database.
