@@ -69,6 +69,11 @@ struct EvalArgs {
     /// work (`cargo test --release -p common -- --ignored corpus`).
     #[arg(long, value_name = "DIR")]
     tiles_out: Option<PathBuf>,
+    /// With the pose graph on: also map its kept sweeps again at the poses the final map has
+    /// them at and score that map (`rebuild_check` in the JSON): what a rebuild loses when
+    /// nothing moved.
+    #[arg(long)]
+    rebuild_check: bool,
 }
 
 #[derive(Debug, clap::Args)]
@@ -377,6 +382,7 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
     if let Some(on) = a.graph {
         opts.agent.slam.graph.enabled = on;
     }
+    opts.rebuild_check = a.rebuild_check;
     if let Some(dir) = &a.tiles_out {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         opts.tiles_out = Some(dir.clone());

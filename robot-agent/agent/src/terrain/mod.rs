@@ -182,7 +182,14 @@ impl TerrainMap {
             .shadow
             .as_ref()
             .map(|s| s.fed_until.unwrap_or(f64::NEG_INFINITY));
-        match kept.correct(map_from_slam_at, fed_until) {
+        let c = kept.correct(map_from_slam_at, fed_until);
+        let (max_move_m, moved) = kept.last_move();
+        tracing::info!(
+            "map rebuild at {t_s:.2} s: correction moves kept sweeps by up to {max_move_m:.3} m ({moved} of {} over the minimum): {c:?} (a running rebuild had fed {:?})",
+            kept.len(),
+            self.shadow.as_ref().map(|s| s.fed)
+        );
+        match c {
             rebuild::Correction::None => return Ok(Vec::new()),
             rebuild::Correction::Retarget => self.retargets += 1,
             rebuild::Correction::Restart => {
@@ -190,6 +197,7 @@ impl TerrainMap {
                     mapper: mapping::Mapper::new(self.mapper.config().clone())?,
                     fed_until: None,
                     fed: 0,
+                    started_s: t_s,
                 });
             }
         }
@@ -242,6 +250,11 @@ impl TerrainMap {
         let Some(sh) = self.shadow.take() else {
             return Ok(Vec::new());
         };
+        tracing::info!(
+            "map rebuild swapped in at {t_s:.2} s: {} kept sweeps fed since {:.2} s",
+            sh.fed,
+            sh.started_s
+        );
         self.rebuilds += 1;
         Ok(self.mapper.replace_with(sh.mapper, t_s))
     }
@@ -261,6 +274,34 @@ impl TerrainMap {
     /// Kept sweeps a rebuild under way has fed its shadow map (None: no rebuild runs).
     pub fn rebuild_progress(&self) -> Option<usize> {
         self.shadow.as_ref().map(|s| s.fed)
+    }
+
+    /// The kept sweeps mapped again, in a fresh mapper, at the poses the current map has them
+    /// at (no correction): what a rebuild makes of the live map's own sweeps, to tell what the
+    /// rebuild loses from what a correction moves (`robot-agent map eval --rebuild-check`).
+    /// None without a store (graph off).
+    pub fn remap_unchanged(
+        &self,
+        base_from_lidar: &nalgebra::Isometry3<f64>,
+    ) -> Result<Option<mapping::Mapper>, mapping::MapError> {
+        let Some(kept) = self.kept.as_ref() else {
+            return Ok(None);
+        };
+        let mut m = mapping::Mapper::new(self.mapper.config().clone())?;
+        let mut after = None;
+        // A few at a time: restored to f32 the whole store would take twice its memory.
+        loop {
+            let batch = kept.after(after, 16);
+            if batch.is_empty() {
+                return Ok(Some(m));
+            }
+            for r in batch {
+                let (pts, origin) = rebuild::to_map(&r, base_from_lidar);
+                let robot = robot_pose(&PoseMap::from_iso(r.map_from_base));
+                m.update_sweep(pts, origin, &robot, r.t_s)?;
+                after = Some(r.t_s);
+            }
+        }
     }
 
     /// Corrections that re-targeted a running rebuild.

@@ -3,9 +3,10 @@
 //!
 //! The cells hold evidence summaries (height statistics per epoch), not the points behind them,
 //! and one cell mixes sweeps of many times, so a cell cannot be moved by "its" correction. What
-//! is kept instead is a sweep every `map_rebuild_spacing_m` of travel (lidar frame, within the
-//! mapper's range, each coordinate quantised to an `i16` step of range/32000, under a millimetre
-//! at 30 m) with its SLAM pose; after a correction that moves any of them by more than
+//! is kept instead is a sweep every `map_rebuild_spacing_m` of travel (lidar frame, every finite
+//! return in order: within 1.1 times the mapper's range each coordinate quantised to an `i16`
+//! step of 1.1 range/32000, about a millimetre at 30 m, beyond it only the beam's direction,
+//! for the free space it marks) with its SLAM pose; after a correction that moves any of them by more than
 //! `map_rebuild_min_move_m`, a shadow mapper is fed the kept sweeps in time order at their
 //! corrected poses (`map<-slam` from the graph at each sweep's time), a few per sweep
 //! ([`Shadow`]), and replaces the map once it has caught up. Every tile is then offered for
@@ -16,8 +17,23 @@
 use nalgebra::{Isometry3, Point3};
 use sensing::Point;
 
-/// Largest quantised coordinate: the mapper's range maps to this.
+/// Largest quantised coordinate: [`NEAR_RANGE`] times the mapper's range maps to this.
 const Q_MAX: f32 = 32000.0;
+
+/// First coordinate of a return beyond the mapper's range: the other two are its beam's
+/// azimuth and elevation in steps of pi/32768 (under 3 mm at 25 m), and it is restored at
+/// [`FAR_RANGE`] times the range. No return within the range has this coordinate.
+const FAR: i16 = i16::MIN;
+
+/// Where a far return is restored along its beam, in mapper ranges: beyond the mapper's range
+/// filter and its scratch window (range plus a margin, less than 1.5x on the diagonal), so it
+/// only marches the free space it crossed, out to `clear_reach_m`, as the return itself did.
+const FAR_RANGE: f32 = 2.0;
+
+/// Returns within this many mapper ranges of the sensor keep their position: the range filter
+/// measures from the robot, not the sensor, and the lever arm between them is well under a
+/// tenth of the range.
+const NEAR_RANGE: f32 = 1.1;
 
 /// One kept sweep.
 struct KeptSweep {
@@ -39,6 +55,8 @@ fn sweep_bytes(s: &KeptSweep) -> usize {
 pub struct SweepStore {
     spacing_m: f64,
     min_move_m: f64,
+    /// The mapper's range, metres: returns farther than [`NEAR_RANGE`] times it from the sensor
+    /// are kept as their beam's direction only ([`FAR`]).
     max_range_m: f32,
     /// Quantisation step of the returns, metres.
     step_m: f32,
@@ -47,6 +65,9 @@ pub struct SweepStore {
     sweeps: Vec<KeptSweep>,
     /// Sweeps dropped to stay under the cap.
     dropped: u64,
+    /// The last correction: largest move of a kept sweep, metres, and sweeps moved by more
+    /// than `min_move_m` (what the agent logs).
+    last_move: (f64, usize),
 }
 
 /// What a correction means for the kept sweeps.
@@ -73,20 +94,26 @@ pub struct Remap {
 }
 
 impl SweepStore {
-    /// An empty store keeping a sweep every `spacing_m` of travel, its returns within
-    /// `max_range_m` (the mapper's range: what it would drop anyway is not kept), at most
-    /// `max_mb` megabytes (10^6 bytes).
+    /// An empty store keeping a sweep every `spacing_m` of travel (0: every sweep), at most
+    /// `max_mb` megabytes (10^6 bytes). Every finite return is kept, in the sweep's order: the
+    /// mapper marches free space along every `beam_stride`-th return, those beyond its
+    /// `max_range_m` included (a beam that ends 50 m away proves the first 25 m empty), so
+    /// dropping the far ones would both lose that free space and shift which beams are
+    /// marched. Returns within 1.1 `max_range_m` keep their position (steps of 1.1
+    /// range/32000, about a millimetre at 30 m), those beyond only their beam's direction
+    /// ([`FAR`]).
     pub fn new(spacing_m: f64, min_move_m: f64, max_range_m: f64, max_mb: f64) -> Self {
         let max_range_m = (max_range_m as f32).max(1e-3);
         Self {
             spacing_m,
             min_move_m,
             max_range_m,
-            step_m: max_range_m / Q_MAX,
+            step_m: NEAR_RANGE * max_range_m / Q_MAX,
             max_bytes: (max_mb.max(0.0) * 1e6) as usize,
             bytes: 0,
             sweeps: Vec::new(),
             dropped: 0,
+            last_move: (0.0, 0),
         }
     }
 
@@ -132,18 +159,32 @@ impl SweepStore {
         if !due || !t_s.is_finite() {
             return false;
         }
-        let r2 = self.max_range_m * self.max_range_m;
+        let near = NEAR_RANGE * self.max_range_m;
+        let r2 = near * near;
         let inv = 1.0 / self.step_m;
+        let angle = 32768.0 / std::f32::consts::PI;
         // Within the range every coordinate is at most Q_MAX steps: the casts cannot saturate.
+        // The mapper drops non-finite returns before it strides over the beams, so leaving
+        // them out keeps the stride on the same beams.
         let mut points: Vec<[i16; 3]> = points
             .iter()
-            .filter(|p| p.is_finite() && p.x * p.x + p.y * p.y + p.z * p.z <= r2)
+            .filter(|p| p.is_finite())
             .map(|p| {
-                [
-                    (p.x * inv).round() as i16,
-                    (p.y * inv).round() as i16,
-                    (p.z * inv).round() as i16,
-                ]
+                if p.x * p.x + p.y * p.y + p.z * p.z <= r2 {
+                    [
+                        (p.x * inv).round() as i16,
+                        (p.y * inv).round() as i16,
+                        (p.z * inv).round() as i16,
+                    ]
+                } else {
+                    let az = p.y.atan2(p.x);
+                    let el = p.z.atan2(p.x.hypot(p.y));
+                    [
+                        FAR,
+                        (az * angle).round().clamp(-32767.0, 32767.0) as i16,
+                        (el * angle).round() as i16,
+                    ]
+                }
             })
             .collect();
         // Filtering leaves spare capacity; the cap counts what is held.
@@ -206,8 +247,15 @@ impl SweepStore {
             (s.mapped_at.translation.vector - p.translation.vector).norm() > self.min_move_m
         };
         let fed = |s: &KeptSweep| fed_until.is_some_and(|f| s.t_s <= f);
-        let any = self.sweeps.iter().zip(&poses).any(|(s, p)| moved(s, p));
-        if !any {
+        self.last_move = self
+            .sweeps
+            .iter()
+            .zip(&poses)
+            .fold((0.0, 0), |(m, n), (s, p)| {
+                let d = (s.mapped_at.translation.vector - p.translation.vector).norm();
+                (d.max(m), n + usize::from(d > self.min_move_m))
+            });
+        if self.last_move.1 == 0 {
             return Correction::None;
         }
         let restart = fed_until.is_none()
@@ -238,23 +286,39 @@ impl SweepStore {
             .map(|s| Remap {
                 t_s: s.t_s,
                 map_from_base: s.mapped_at,
-                points: s
-                    .points
-                    .iter()
-                    .map(|q| {
-                        [
-                            f32::from(q[0]) * self.step_m,
-                            f32::from(q[1]) * self.step_m,
-                            f32::from(q[2]) * self.step_m,
-                        ]
-                    })
-                    .collect(),
+                points: s.points.iter().map(|q| self.restore(q)).collect(),
             })
             .collect()
     }
 }
 
 impl SweepStore {
+    /// A kept return in metres (a far one at [`FAR_RANGE`] times the range on its beam).
+    fn restore(&self, q: &[i16; 3]) -> [f32; 3] {
+        if q[0] == FAR {
+            let rad = std::f32::consts::PI / 32768.0;
+            let (az, el) = (f32::from(q[1]) * rad, f32::from(q[2]) * rad);
+            let r = FAR_RANGE * self.max_range_m;
+            [
+                r * el.cos() * az.cos(),
+                r * el.cos() * az.sin(),
+                r * el.sin(),
+            ]
+        } else {
+            [
+                f32::from(q[0]) * self.step_m,
+                f32::from(q[1]) * self.step_m,
+                f32::from(q[2]) * self.step_m,
+            ]
+        }
+    }
+
+    /// The last correction: the largest move of a kept sweep, metres, and how many moved by
+    /// more than `map_rebuild_min_move_m`.
+    pub fn last_move(&self) -> (f64, usize) {
+        self.last_move
+    }
+
     /// Some kept sweep is newer than `after` (any when None).
     pub fn has_after(&self, after: Option<f64>) -> bool {
         self.sweeps
@@ -271,6 +335,8 @@ pub struct Shadow {
     pub fed_until: Option<f64>,
     /// Kept sweeps fed.
     pub fed: usize,
+    /// Time of the live sweep that started it, seconds.
+    pub started_s: f64,
 }
 
 /// A kept sweep's returns in the map frame and the sensor's position there.
@@ -310,15 +376,15 @@ mod tests {
         let mut st = SweepStore::new(0.5, 0.05, 30.0, 100.0);
         for i in 0..10 {
             let p = se3::from_xyz_rpy([0.2 * f64::from(i), 0.0, 0.0], [0.0; 3]);
-            st.offer(f64::from(i), &p, &p, &[pt(1.0), pt(40.0), pt(f32::NAN)]);
+            st.offer(f64::from(i), &p, &p, &[pt(1.0), pt(100.0), pt(f32::NAN)]);
         }
         // 0, 0.6, 1.2, 1.8 m: every third sweep.
         assert_eq!(st.len(), 4);
-        assert_eq!(
-            st.points(),
-            4,
-            "out-of-range and non-finite returns are not kept"
-        );
+        assert_eq!(st.points(), 8, "non-finite returns are not kept");
+        // The far return stays on its beam, restored at twice the range (the mapper's range
+        // filter drops it there, its free space is the same).
+        let far = st.after(None, 1)[0].points[1];
+        assert!((far[0] - 60.0).abs() < 0.01 && far[1] == 0.0, "{far:?}");
         let ident = |_| Some(Isometry3::identity());
         assert_eq!(st.correct(ident, None), Correction::None);
         let shift = se3::from_xyz_rpy([0.0, 0.3, 0.0], [0.0; 3]);
@@ -345,7 +411,7 @@ mod tests {
 
     #[test]
     fn quantised_returns_stay_within_half_a_step_and_the_cap_thins_the_oldest_half() {
-        let step = 30.0 / Q_MAX;
+        let step = NEAR_RANGE * 30.0 / Q_MAX;
         let mut st = SweepStore::new(0.5, 0.05, 30.0, 1.0);
         let p0 = Isometry3::identity();
         let q = [0.123_456_f32, -29.99, 7.777];

@@ -17,7 +17,7 @@ use std::rc::Rc;
 mod report;
 pub use report::{
     ErrorCounts, ErrorKind, GraphReport, HeightDiagnostics, MapEvalProgress, MapEvalReport,
-    Percentiles,
+    Percentiles, RebuildCheck,
 };
 
 /// Options of one evaluation run.
@@ -39,6 +39,9 @@ pub struct MapEvalOptions {
     /// Write every published tile, exact (postcard of `common::grid::Tile`, before the wire's
     /// quantization), into this folder as `NNNNNN-TX_TY.tile`: a corpus for codec work.
     pub tiles_out: Option<std::path::PathBuf>,
+    /// At the end, also map the pose graph's kept sweeps again at the poses the final map has
+    /// them at and score that map (`rebuild_check`): what a rebuild loses with no correction.
+    pub rebuild_check: bool,
 }
 
 impl Default for MapEvalOptions {
@@ -50,6 +53,7 @@ impl Default for MapEvalOptions {
             agent: AgentConfig::default(),
             walker_margin_m: 0.0,
             tiles_out: None,
+            rebuild_check: false,
         }
     }
 }
@@ -164,6 +168,7 @@ pub fn run(
     rep.obstacle_positions = super::obstacle_positions::score(mapper, scenario);
     if let Some(g) = rig.agent.localiser().graph_stats() {
         let (map_rebuilds, kept_sweeps) = rig.agent.terrain().rebuild_counts();
+        let (kept_bytes, kept_dropped) = rig.agent.terrain().rebuild_memory();
         rep.graph = GraphReport {
             keyframes: g.keyframes,
             gnss_factors: g.gnss_factors,
@@ -171,6 +176,8 @@ pub fn run(
             optimisations: g.optimisations,
             map_rebuilds,
             kept_sweeps,
+            kept_mb: kept_bytes as f64 * 1e-6,
+            kept_dropped,
             loop_rejections: [
                 g.loop_no_descriptor,
                 g.loop_no_candidate,
@@ -187,6 +194,25 @@ pub fn run(
             .map(|k| (k.stamp_s, k.pose))
             .collect();
         rep.graph_keyframes = keyframe_log.score(&poses);
+    }
+    if opts.rebuild_check {
+        let blf = *rig.agent.localiser().base_from_lidar();
+        if let Some(m) = rig.agent.terrain().remap_unchanged(&blf)? {
+            let mut r = MapEvalReport::default();
+            score(
+                &m,
+                rig.sim.world(),
+                &sim::LabelParams::from_profile(&opts.agent.profile),
+                &walker_trace,
+                &mut r,
+            );
+            rep.rebuild_check = Some(RebuildCheck {
+                accuracy: r.accuracy,
+                false_obstacle_rate: r.false_obstacle_rate,
+                obstacle_recall: r.obstacle_recall,
+                obstacle_positions: super::obstacle_positions::score(&m, scenario),
+            });
+        }
     }
     rep.map_digest = common::grid::map_digest(&mapper.tiles());
     let Rig { agent, .. } = rig;

@@ -94,6 +94,10 @@ pub struct MapEvalReport {
     pub graph: GraphReport,
     /// The graph's keyframes against the truth: live pose when made, graph pose at the end.
     pub graph_keyframes: crate::run::graph_eval::GraphKeyframes,
+    /// With `--rebuild-check`: the kept sweeps mapped again at the poses the final map has
+    /// them at, scored like the map (what a rebuild loses without any correction).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rebuild_check: Option<RebuildCheck>,
     /// The wrong cells themselves (global lattice index, kind), for drawing.
     #[serde(skip)]
     pub error_cells: Vec<(i64, i64, ErrorKind)>,
@@ -169,9 +173,26 @@ pub struct GraphReport {
     pub map_rebuilds: u64,
     /// Sweeps kept for rebuilding at the end.
     pub kept_sweeps: usize,
+    /// Megabytes (10^6 bytes) the kept sweeps hold at the end.
+    pub kept_mb: f64,
+    /// Sweeps dropped from the store to stay under `map_rebuild_max_mb`.
+    pub kept_dropped: u64,
     /// Loop searches per outcome: no usable descriptor, no candidate close enough, ICP failed,
     /// ICP fit too poor.
     pub loop_rejections: [usize; 4],
+}
+
+/// The final map's kept sweeps mapped again at unchanged poses, scored.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct RebuildCheck {
+    /// Share of scored cells whose class matches the truth.
+    pub accuracy: f64,
+    /// Share of observed truth-traversable cells marked obstacles.
+    pub false_obstacle_rate: f64,
+    /// Share of observed truth obstacles marked obstacles.
+    pub obstacle_recall: f64,
+    /// Poles and trunks in that map.
+    pub obstacle_positions: crate::run::obstacle_positions::ObstaclePositions,
 }
 
 /// What went wrong in one cell.
