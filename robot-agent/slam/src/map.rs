@@ -10,9 +10,9 @@ use sensing::Point;
 
 mod dynamic;
 
-use dynamic::update_dynamic;
 #[cfg(test)]
 use dynamic::{angles, fast_atan2, RangeImage};
+use dynamic::{update_dynamic, BeamBins};
 
 #[derive(Debug)]
 enum Index {
@@ -50,6 +50,8 @@ pub struct Map {
     index_map: Option<Vec<u32>>,
     kind: MapIndexKind,
     voxel_size_m: f32,
+    /// The dynamic-point update's direction bins, reused between scans.
+    beam_bins: BeamBins,
 }
 
 impl Map {
@@ -67,6 +69,7 @@ impl Map {
             index_map: None,
             kind,
             voxel_size_m,
+            beam_bins: BeamBins::default(),
         }
     }
 
@@ -121,6 +124,7 @@ impl Map {
         let mut stats = MapUpdateStats::default();
         if dyn_cfg.enabled && !self.is_empty() {
             stats.observed = update_dynamic(
+                &mut self.beam_bins,
                 &self.cloud,
                 &mut self.p_dynamic,
                 raw_sensor,
@@ -153,6 +157,7 @@ impl Map {
             return stats;
         }
         stats.observed = update_dynamic(
+            &mut self.beam_bins,
             &self.cloud,
             &mut self.p_dynamic,
             raw_sensor,

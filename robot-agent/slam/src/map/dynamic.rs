@@ -37,11 +37,16 @@ pub(super) fn angles(p: &Vector3<f32>) -> (f32, f32) {
 }
 
 /// Direction bins of a scan (a sparse range image) for beam look-ups, built by counting sort
-/// over the elevation band the scan covers: O(points), no comparison sort.
-struct BeamBins {
+/// over the elevation band the scan covers: O(points), no comparison sort. Kept in the map and
+/// rebuilt for each scan: its bin table is a megabyte or two, which allocated afresh for every
+/// scan cost page faults and a copy.
+#[derive(Debug, Default)]
+pub(super) struct BeamBins {
     /// Cell `c` holds `order[start[c]..start[c + 1]]`.
     start: Vec<u32>,
     order: Vec<u32>,
+    /// Each direction's (azimuth, elevation) bin, kept between the two passes.
+    bins: Vec<(u32, u32)>,
     n_az: u32,
     row0: u32,
     n_rows: u32,
@@ -56,40 +61,41 @@ impl BeamBins {
         )
     }
 
-    /// Bins the directions `dirs` (from [`angles`]).
-    fn new(dirs: &[(f32, f32)], bin_rad: f32) -> Self {
-        let inv_bin = 1.0 / bin_rad;
-        let n_az = (std::f32::consts::TAU * inv_bin).ceil() as u32;
-        let mut me = BeamBins {
-            start: Vec::new(),
-            order: vec![0u32; dirs.len()],
-            n_az,
-            row0: 0,
-            n_rows: 1,
-            inv_bin,
-        };
-        let bins: Vec<(u32, u32)> = dirs.iter().map(|(a, e)| me.cell(*a, *e)).collect();
+    /// Bins the directions `dirs` (from [`angles`]), reusing the buffers.
+    fn rebuild(&mut self, dirs: &[(f32, f32)], bin_rad: f32) {
+        self.inv_bin = 1.0 / bin_rad;
+        self.n_az = (std::f32::consts::TAU * self.inv_bin).ceil() as u32;
+        let mut bins = std::mem::take(&mut self.bins);
+        bins.clear();
+        bins.extend(dirs.iter().map(|(a, e)| self.cell(*a, *e)));
+        let n_az = self.n_az;
         let row0 = bins.iter().map(|b| b.1).min().unwrap_or(0);
         let row1 = bins.iter().map(|b| b.1).max().unwrap_or(0);
         let n_rows = row1 - row0 + 1;
         let cells = (n_rows * n_az) as usize;
-        let mut start = vec![0u32; cells + 1];
+        let start = &mut self.start;
+        start.clear();
+        start.resize(cells + 1, 0);
         for (a, e) in &bins {
             start[((e - row0) * n_az + a) as usize + 1] += 1;
         }
         for c in 0..cells {
             start[c + 1] += start[c];
         }
-        let mut fill = start.clone();
+        // Each cell's entry serves as its fill cursor (ending at the next cell's start), then
+        // the table moves up one place: no second table.
+        self.order.clear();
+        self.order.resize(dirs.len(), 0);
         for (i, (a, e)) in bins.iter().enumerate() {
             let c = ((e - row0) * n_az + a) as usize;
-            me.order[fill[c] as usize] = i as u32;
-            fill[c] += 1;
+            self.order[start[c] as usize] = i as u32;
+            start[c] += 1;
         }
-        me.start = start;
-        me.row0 = row0;
-        me.n_rows = n_rows;
-        me
+        start.copy_within(0..cells, 1);
+        start[0] = 0;
+        self.bins = bins;
+        self.row0 = row0;
+        self.n_rows = n_rows;
     }
 
     /// Calls `f` with the indices of points in the 3x3 bins around the direction `(az, el)`.
@@ -286,6 +292,7 @@ impl RangeImage {
 /// people's are); otherwise, when both lasers bracketing q's direction ended beyond q, the sensor
 /// saw through q's place at its own resolution (weight `dynamic.range_image_weight`).
 pub(super) fn update_dynamic(
+    bins: &mut BeamBins,
     map: &OrientedCloud,
     p_dynamic: &mut [f32],
     raw_sensor: &[Point],
@@ -313,7 +320,8 @@ pub(super) fn update_dynamic(
     let ranges: Vec<f32> = scan.iter().map(|p| p.norm()).collect();
     let dirs: Vec<(f32, f32)> = scan.iter().map(angles).collect();
     let theta_max = cfg.beam_half_angle_rad as f32;
-    let bins = BeamBins::new(&dirs, theta_max);
+    bins.rebuild(&dirs, theta_max);
+    let bins = &*bins;
     let image = if cfg.range_image_weight > 0.0 {
         RangeImage::new(
             &rings_of,
