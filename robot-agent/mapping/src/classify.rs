@@ -286,9 +286,14 @@ impl Rules {
             let Some(slope) = sides.mean() else {
                 continue;
             };
-            // The jump across compares grounds, as the profile does (grass read at its lowest
-            // return); the slopes beside stay on the means. Against the grass's mean a 10 cm
-            // curb whose face lies inside this cell read 7 cm and passed (`park`, own poses).
+            if (hi - lo - 2.0 * slope).abs() > self.max_step_m {
+                return Verdict::Step;
+            }
+            // And across the grounds, as the profile does (grass read at its lowest return; the
+            // slopes beside stay on the means): against the grass's mean a 10 cm curb whose
+            // face lies inside this cell read 7 cm and passed (`park`, own poses). In addition
+            // to the means, not instead: a curb top holding a few face returns has a grass-like
+            // spread too, and its lowest return would hide the step (`street`'s 10 cm band).
             let (Some(glo), Some(ghi)) = (gseen(-ux, -uy), gseen(ux, uy)) else {
                 continue;
             };
