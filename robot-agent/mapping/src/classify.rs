@@ -289,6 +289,17 @@ impl Rules {
             if (hi - lo - 2.0 * slope).abs() > self.max_step_m {
                 return Verdict::Step;
             }
+            // And across the grounds, as the profile does (grass read at its lowest return; the
+            // slopes beside stay on the means): against the grass's mean a 10 cm curb whose
+            // face lies inside this cell read 7 cm and passed (`park`, own poses). In addition
+            // to the means, not instead: a curb top holding a few face returns has a grass-like
+            // spread too, and its lowest return would hide the step (`street`'s 10 cm band).
+            let (Some(glo), Some(ghi)) = (gseen(-ux, -uy), gseen(ux, uy)) else {
+                continue;
+            };
+            if (ghi - glo - 2.0 * slope).abs() > self.max_step_m {
+                return Verdict::Step;
+            }
         }
         Verdict::Traversable
     }
@@ -519,5 +530,39 @@ mod grass_tests {
             ..Config::default()
         });
         assert_eq!(off.classify(&grass_then_top(0.09)), Verdict::Traversable);
+    }
+
+    /// Grass for x < 0, a hard top `h` for x > 0, and the curb's face inside the centre cell a
+    /// quarter of the way in from the grass (three quarters of its points on the top): the
+    /// park strip's near edge, whose cell's mean sits between the grass's mean and the top.
+    fn face_in_cell(h: f64) -> Neighbourhood {
+        let mut nb = grass_then_top(h);
+        let (grass, top) = (nb[2][1], nb[2][3]);
+        let (w, d) = (0.75, h - grass.mean_m);
+        let face = CellStats {
+            n: 40,
+            mean_m: w * top.mean_m + (1.0 - w) * grass.mean_m,
+            var_m2: w * top.var_m2 + (1.0 - w) * grass.var_m2 + w * (1.0 - w) * d * d,
+            max_m: top.max_m,
+            min_m: grass.min_m,
+        };
+        for row in nb.iter_mut() {
+            row[2] = face;
+        }
+        nb
+    }
+
+    #[test]
+    fn a_9_cm_strip_whose_face_lies_inside_the_cell_blocks_against_grass() {
+        let r = Rules::new(&Config::default());
+        // Across the face cell: 9 cm against the grass's ground, 7 cm against its mean (under
+        // max_step_m), and no neighbour jump reaches a step on its own.
+        assert_eq!(r.classify(&face_in_cell(0.09)), Verdict::Step);
+        assert_eq!(r.classify(&face_in_cell(0.05)), Verdict::Traversable);
+        let off = Rules::new(&Config {
+            grass_sd_max_m: 0.0,
+            ..Config::default()
+        });
+        assert_eq!(off.classify(&face_in_cell(0.09)), Verdict::Traversable);
     }
 }

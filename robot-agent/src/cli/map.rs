@@ -65,6 +65,10 @@ struct EvalArgs {
     /// why a cell is what it is.
     #[arg(long, value_name = "X,Y", allow_hyphen_values = true)]
     probe: Vec<String>,
+    /// Trace the cell at these map points (`X,Y`, repeatable) through the drive: a line on
+    /// stderr whenever its evidence, verdict or class changes, with the time and the pose.
+    #[arg(long, value_name = "X,Y", allow_hyphen_values = true)]
+    trace: Vec<String>,
     /// Write every published tile, exact, into this folder (created): a corpus for tile codec
     /// work (`cargo test --release -p common -- --ignored corpus`).
     #[arg(long, value_name = "DIR")]
@@ -320,14 +324,9 @@ fn probe(
     opts: &map_eval::MapEvalOptions,
     at: &str,
 ) -> anyhow::Result<()> {
-    let v: Vec<f64> = at
-        .split(',')
-        .map(|t| t.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .with_context(|| format!("--probe {at:?}: want X,Y"))?;
-    anyhow::ensure!(v.len() == 2, "--probe {at:?}: want X,Y");
+    let (px, py) = parse_xy("--probe", at)?;
     let lattice = mapper.lattice();
-    let (cx, cy) = lattice.cell_of(v[0], v[1]);
+    let (cx, cy) = lattice.cell_of(px, py);
     let world = sim::World::new(scenario);
     let truth = world.truth_labels(
         &lattice,
@@ -337,10 +336,7 @@ fn probe(
         7,
         &sim::LabelParams::from_profile(&opts.agent.profile),
     );
-    eprintln!(
-        "probe ({}, {}) = cell ({cx}, {cy}); rows north to south",
-        v[0], v[1]
-    );
+    eprintln!("probe ({px}, {py}) = cell ({cx}, {cy}); rows north to south");
     for y in (cy - 3..=cy + 3).rev() {
         for x in cx - 3..=cx + 3 {
             let st = mapper.height_stats(x, y);
@@ -366,6 +362,17 @@ fn probe(
     Ok(())
 }
 
+/// A map point `X,Y` given to option `opt`.
+fn parse_xy(opt: &str, at: &str) -> anyhow::Result<(f64, f64)> {
+    let v: Vec<f64> = at
+        .split(',')
+        .map(|t| t.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("{opt} {at:?}: want X,Y"))?;
+    anyhow::ensure!(v.len() == 2, "{opt} {at:?}: want X,Y");
+    Ok((v[0], v[1]))
+}
+
 /// `on` / `off` (also `true` / `false`).
 pub(super) fn parse_on_off(s: &str) -> Result<bool, String> {
     match s {
@@ -379,6 +386,11 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
     let (scenario, mut opts) =
         eval_options(&a.scenario, a.config.as_deref(), a.use_truth_poses, a.seed)?;
     opts.max_duration_s = a.max_duration;
+    opts.trace_cells = a
+        .trace
+        .iter()
+        .map(|t| parse_xy("--trace", t))
+        .collect::<anyhow::Result<_>>()?;
     if let Some(on) = a.graph {
         opts.agent.slam.graph.enabled = on;
     }

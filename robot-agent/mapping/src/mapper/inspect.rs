@@ -53,18 +53,21 @@ impl Mapper {
             }
         };
         format!(
-            "cell ({cx}, {cy}) {:?} (rules now: {:?}); cur {} from {:.1} m | prev {} from {:.1} m; headroom {}; driven {} at {:.3}; changed {} s; judged from {:.1} m",
+            "cell ({cx}, {cy}) {:?} (rules now: {:?}); cur {} from {:.1} m | prev {} from {:.1} m; closest view {:.1} m, accepted {:.1} s; headroom {}; driven {} at {:.3}; changed {} s; judged from {:.1} m; far-wiped {}",
             d.class,
             self.explain(cx, cy),
             ep(&d.cur),
             d.cur_range_m,
             ep(&d.prev),
             d.prev_range_m,
+            d.seen_range_m,
+            d.accepted_s,
             d.headroom,
             d.driven,
             d.driven_z,
             d.stamp_s,
-            d.class_range_m
+            d.class_range_m,
+            d.far_wiped
         )
     }
 

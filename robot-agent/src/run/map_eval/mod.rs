@@ -42,6 +42,10 @@ pub struct MapEvalOptions {
     /// At the end, also map the pose graph's kept sweeps again at the poses the final map has
     /// them at and score that map (`rebuild_check`): what a rebuild loses with no correction.
     pub rebuild_check: bool,
+    /// Map points whose cell is traced: after every sweep that changes the cell's description
+    /// (`Mapper::describe`), a line with the time and the pose against the truth goes to
+    /// stderr. Why a cell ended up wrong is usually in when it changed and from where.
+    pub trace_cells: Vec<(f64, f64)>,
 }
 
 impl Default for MapEvalOptions {
@@ -54,6 +58,7 @@ impl Default for MapEvalOptions {
             walker_margin_m: 0.0,
             tiles_out: None,
             rebuild_check: false,
+            trace_cells: Vec::new(),
         }
     }
 }
@@ -103,6 +108,7 @@ pub fn run(
     };
     let mut walker_trace: Vec<(f64, f64)> = Vec::new();
     let mut keyframe_log = super::graph_eval::KeyframeLog::default();
+    let mut traced: Vec<String> = vec![String::new(); opts.trace_cells.len()];
     let mut last = rig.sim.truth_pose2();
     let mut last_progress = 0.0;
     let n_vertices = drive.points.len().max(1) as f64;
@@ -128,6 +134,7 @@ pub fn run(
         }
         if ev.scan {
             keyframe_log.record(&rig);
+            trace_cells(&rig, &opts.trace_cells, &mut traced);
         }
         if let Some(e) = write_error.borrow_mut().take() {
             return Err(e);
@@ -217,6 +224,19 @@ pub fn run(
     rep.map_digest = common::grid::map_digest(&mapper.tiles());
     let Rig { agent, .. } = rig;
     Ok((rep, agent.into_mapper()))
+}
+
+/// Prints each traced cell's description when it differs from the one printed last (`last`).
+fn trace_cells(rig: &Rig, at: &[(f64, f64)], last: &mut [String]) {
+    let mapper = rig.agent.mapper();
+    for (&(x, y), last) in at.iter().zip(last.iter_mut()) {
+        let (cx, cy) = mapper.lattice().cell_of(x, y);
+        let now = mapper.describe(cx, cy);
+        if now != *last {
+            eprintln!("trace t {:.1} {} | {now}", rig.t_s(), rig.pose_error_text());
+            *last = now;
+        }
+    }
 }
 
 /// Scores the mapper's classes against the world's labels into `rep`.
