@@ -517,19 +517,24 @@ mod grass_tests {
         nb
     }
 
-    #[test]
-    fn a_9_cm_strip_in_grass_blocks_a_5_cm_one_does_not() {
+    /// A 9 cm strip made by `strip` is a step and a 5 cm one is not; without the grass reading
+    /// the 9 cm strip hides in the grass.
+    fn assert_9_cm_blocks_by_the_grass_reading(strip: impl Fn(f64) -> Neighbourhood) {
         let r = Rules::new(&Config::default());
-        // Against the grass's mean these read 7 and 3 cm (both under max_step_m, 7.5 cm);
-        // against its ground, 9 and 5.
-        assert_eq!(r.classify(&grass_then_top(0.09)), Verdict::Step);
-        assert_eq!(r.classify(&grass_then_top(0.05)), Verdict::Traversable);
-        // Without the grass reading the 9 cm strip hides in the grass.
+        assert_eq!(r.classify(&strip(0.09)), Verdict::Step);
+        assert_eq!(r.classify(&strip(0.05)), Verdict::Traversable);
         let off = Rules::new(&Config {
             grass_sd_max_m: 0.0,
             ..Config::default()
         });
-        assert_eq!(off.classify(&grass_then_top(0.09)), Verdict::Traversable);
+        assert_eq!(off.classify(&strip(0.09)), Verdict::Traversable);
+    }
+
+    #[test]
+    fn a_9_cm_strip_in_grass_blocks_a_5_cm_one_does_not() {
+        // Against the grass's mean these read 7 and 3 cm (both under max_step_m, 7.5 cm);
+        // against its ground, 9 and 5.
+        assert_9_cm_blocks_by_the_grass_reading(grass_then_top);
     }
 
     /// Grass for x < 0, a hard top `h` for x > 0, and the curb's face inside the centre cell a
@@ -554,15 +559,8 @@ mod grass_tests {
 
     #[test]
     fn a_9_cm_strip_whose_face_lies_inside_the_cell_blocks_against_grass() {
-        let r = Rules::new(&Config::default());
         // Across the face cell: 9 cm against the grass's ground, 7 cm against its mean (under
         // max_step_m), and no neighbour jump reaches a step on its own.
-        assert_eq!(r.classify(&face_in_cell(0.09)), Verdict::Step);
-        assert_eq!(r.classify(&face_in_cell(0.05)), Verdict::Traversable);
-        let off = Rules::new(&Config {
-            grass_sd_max_m: 0.0,
-            ..Config::default()
-        });
-        assert_eq!(off.classify(&face_in_cell(0.09)), Verdict::Traversable);
+        assert_9_cm_blocks_by_the_grass_reading(face_in_cell);
     }
 }

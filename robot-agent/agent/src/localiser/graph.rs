@@ -241,15 +241,20 @@ mod tests {
     use super::*;
     use slam::se3;
 
+    /// A graph localiser with the default configuration, switched on.
+    fn enabled_localiser() -> GraphLocaliser {
+        GraphLocaliser::new(&GraphConfig {
+            enabled: true,
+            ..GraphConfig::default()
+        })
+        .expect("enabled")
+    }
+
     #[test]
     fn rtk_returning_after_an_outage_moves_the_frame_back_smoothly() {
         // A straight 200 m drive east, a sweep every metre, SLAM drifting 0.05 deg of yaw per
         // metre; RTK fixed (the truth) except between 60 m and 140 m.
-        let cfg = GraphConfig {
-            enabled: true,
-            ..GraphConfig::default()
-        };
-        let mut g = GraphLocaliser::new(&cfg).expect("enabled");
+        let mut g = enabled_localiser();
         let anchor = Isometry3::identity();
         let mut slam_pose = Isometry3::identity();
         let step = se3::from_xyz_rpy([1.0, 0.0, 0.0], [0.0, 0.0, 0.05f64.to_radians()]);
@@ -288,11 +293,7 @@ mod tests {
         // sweep's end (0.1 s after its stamp, 8 cm further on). SLAM is exact; RTK is lost
         // between 40 s and 60 s, so the graph optimises when it returns. Taken at face value
         // the fixes would pull every keyframe 8 cm forward.
-        let cfg = GraphConfig {
-            enabled: true,
-            ..GraphConfig::default()
-        };
-        let mut g = GraphLocaliser::new(&cfg).expect("enabled");
+        let mut g = enabled_localiser();
         let anchor = Isometry3::identity();
         let v = 0.8;
         let mut optimised = false;

@@ -36,17 +36,16 @@ fn at(x: f64, y: f64, z: f64) -> Isometry3<f64> {
     Isometry3::from_parts(Translation3::new(x, y, z), Default::default())
 }
 
-/// Sweep `i` of a drive along y = 0 (0.5 m apart), seen from the truth: its time, the true
-/// x and the returns in the lidar frame.
-fn sweep_points(i: u32) -> (f64, f64, Vec<Point>) {
+/// A VLP-16-like scan of `height` out to `max_range_m` from the sensor above (x, 0), in the
+/// lidar frame.
+fn scan_at(height: &dyn Fn(f64, f64) -> f64, x: f64, max_range_m: f64, seed: u64) -> Vec<Point> {
     let spec = LidarSpec {
         az_step_deg: 0.8,
-        max_range_m: 20.0,
+        max_range_m,
         ..LidarSpec::vlp16()
     };
-    let x = 0.5 * f64::from(i);
-    let mut rng = Rng::new(u64::from(i) + 3);
-    let points = cast_scan(&world, [x, 0.0, SENSOR_H_M], &spec, &mut rng)
+    let mut rng = Rng::new(seed);
+    cast_scan(height, [x, 0.0, SENSOR_H_M], &spec, &mut rng)
         .into_iter()
         .map(|p| Point {
             x: p[0] - x as f32,
@@ -56,7 +55,14 @@ fn sweep_points(i: u32) -> (f64, f64, Vec<Point>) {
             ring: 0,
             t_s: 0.0,
         })
-        .collect();
+        .collect()
+}
+
+/// Sweep `i` of a drive along y = 0 (0.5 m apart), seen from the truth: its time, the true
+/// x and the returns in the lidar frame.
+fn sweep_points(i: u32) -> (f64, f64, Vec<Point>) {
+    let x = 0.5 * f64::from(i);
+    let points = scan_at(&world, x, 20.0, u64::from(i) + 3);
     (10.0 + 0.1 * f64::from(i), x, points)
 }
 
@@ -260,26 +266,10 @@ fn a_rebuild_at_unchanged_poses_reproduces_the_live_map() {
     cfg.slam.graph.enabled = true;
     cfg.slam.graph.map_rebuild_spacing_m = 0.0;
     let mut m = TerrainMap::new(&cfg).expect("default configuration");
-    let spec = LidarSpec {
-        az_step_deg: 0.8,
-        max_range_m: 60.0,
-        ..LidarSpec::vlp16()
-    };
     let mut far = 0usize;
     for i in 0..20u32 {
         let x = 0.3 * f64::from(i);
-        let mut rng = Rng::new(u64::from(i) + 11);
-        let points: Vec<Point> = cast_scan(&far_world, [x, 0.0, SENSOR_H_M], &spec, &mut rng)
-            .into_iter()
-            .map(|p| Point {
-                x: p[0] - x as f32,
-                y: p[1],
-                z: p[2] - SENSOR_H_M as f32,
-                intensity: 0.0,
-                ring: 0,
-                t_s: 0.0,
-            })
-            .collect();
+        let points = scan_at(&far_world, x, 60.0, u64::from(i) + 11);
         far += points.iter().filter(|p| p.x.hypot(p.y) > 30.0).count();
         let scan = Scan {
             stamp_s: 10.0 + 0.1 * f64::from(i),
