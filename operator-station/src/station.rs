@@ -20,8 +20,8 @@ use tokio::sync::broadcast;
 
 use crate::alerts::{AlertConfig, AlertKind, Alerts, Observation};
 use crate::fleet::{Fleet, RateTopic, MAX_PENDING_TILES};
-use crate::merge::restore::{restore_rows, RestoreProgress};
-use crate::merge::{default_threads, MergeJob, MergeQueue, MergeWorker, MergedMap, TileChange};
+use crate::merge::restore::{restore_from_db, RestoreProgress};
+use crate::merge::{MergeJob, MergeQueue, MergeWorker, MergedMap, TileChange};
 use crate::missions::runner::{RobotNow, Run, RunAction};
 use crate::missions::Mission;
 use crate::store::{self, DatumRow, RouteRow, SessionRow, StoreOp, StoreWriter};
@@ -796,23 +796,9 @@ impl Station {
                 restore.clone(),
             );
             Box::new(move || {
-                let t = Instant::now();
-                match store::open(&db).and_then(|c| store::tiles(&c, None)) {
-                    Ok(rows) => restore_rows(rows, &map, default_threads(), &restore, |d, i| {
-                        crate::pyramid::mark_changed(&pyramid, d, i)
-                    }),
-                    Err(e) => {
-                        tracing::error!("stored map not restored: {e}");
-                        restore.finish();
-                    }
-                }
-                let s = restore.state();
-                tracing::info!(
-                    tiles = s.tiles,
-                    unreadable = s.unreadable,
-                    seconds = t.elapsed().as_secs_f64(),
-                    "stored map restored"
-                );
+                restore_from_db(&db, &map, &restore, |d, i| {
+                    crate::pyramid::mark_changed(&pyramid, d, i)
+                });
                 crate::pyramid::warm_in_background(map, pyramid);
             })
         };

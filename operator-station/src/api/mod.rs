@@ -754,9 +754,10 @@ fn goal_context(st: &AppState, robot: &str) -> RobotContext {
             .unwrap_or_default()
     };
     // While the stored map is still coming back its bounds would understate what is mapped and
-    // refuse a good goal; the robot checks the goal against its own map anyway.
+    // refuse a good goal, so no position is given then and the distance check is left to the
+    // robot, which checks the goal against its own map anyway.
     let restoring = !st.inner.restore.is_finished();
-    let mapped = datum_id.filter(|_| !restoring).and_then(|d| {
+    let mapped = datum_id.and_then(|d| {
         let map = st.inner.map.read().unwrap_or_else(|p| p.into_inner());
         let b = map.datums.get(&d)?.bounds_m()?;
         Some(BoundsM {

@@ -3,14 +3,16 @@
 //! while no live tile can merge into a tile not yet restored and then be stored over it. How far
 //! it has come is in [`RestoreProgress`] (`/api/health`'s `restore`).
 
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::RwLock;
+use std::time::Instant;
 
 use common::grid::{decode_tile, TileIndex};
 use serde::Serialize;
 
-use super::{par_map, MergedMap};
-use crate::store::TileRow;
+use super::{default_threads, par_map, MergedMap};
+use crate::store::{self, TileRow};
 
 /// Stored tiles decoded per step; the map's write lock is taken once per step, so readers (the
 /// HTTP API) wait at most one step's insertions, never the whole restore.
@@ -39,13 +41,6 @@ pub struct RestoreState {
 }
 
 impl RestoreProgress {
-    /// A progress with nothing to restore (a station without a database to read).
-    pub fn finished() -> Self {
-        let p = Self::default();
-        p.finished.store(true, Ordering::Release);
-        p
-    }
-
     /// The state now.
     pub fn state(&self) -> RestoreState {
         RestoreState {
@@ -67,10 +62,36 @@ impl RestoreProgress {
     }
 }
 
+/// Reads the stored merged map from the database at `db` and puts it into `map` on one thread
+/// per core, calling `restored` for each tile put back; logs what it did. A database that
+/// cannot be read is logged and ends the restore with nothing restored.
+pub fn restore_from_db(
+    db: &Path,
+    map: &RwLock<MergedMap>,
+    progress: &RestoreProgress,
+    restored: impl FnMut(&str, TileIndex),
+) {
+    let t = Instant::now();
+    match store::open(db).and_then(|c| store::tiles(&c, None)) {
+        Ok(rows) => restore_rows(rows, map, default_threads(), progress, restored),
+        Err(e) => {
+            tracing::error!("stored map not restored: {e}");
+            progress.finish();
+        }
+    }
+    let s = progress.state();
+    tracing::info!(
+        tiles = s.tiles,
+        unreadable = s.unreadable,
+        seconds = t.elapsed().as_secs_f64(),
+        "stored map restored"
+    );
+}
+
 /// Decodes `rows` on `threads` threads and puts them into `map` as stored (cells and version),
 /// calling `restored` for each tile put back (the zoom pyramid drops what it built beneath it).
 /// An undecodable row is logged, counted and skipped; the rest is restored. Finishes `progress`.
-pub fn restore_rows(
+fn restore_rows(
     rows: Vec<TileRow>,
     map: &RwLock<MergedMap>,
     threads: usize,
@@ -162,6 +183,6 @@ mod tests {
         assert!(!p.is_finished());
         p.finish();
         assert!(p.is_finished());
-        assert!(RestoreProgress::finished().state().finished);
+        assert!(p.state().finished);
     }
 }

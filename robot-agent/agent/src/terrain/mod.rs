@@ -60,6 +60,17 @@ fn robot_pose(pose: &PoseMap) -> mapping::RobotPose {
     }
 }
 
+/// Maps one kept sweep into `mapper` at the pose it was last given.
+fn map_kept(
+    mapper: &mut mapping::Mapper,
+    r: &rebuild::Remap,
+    base_from_lidar: &nalgebra::Isometry3<f64>,
+) -> Result<mapping::UpdateReport, mapping::MapError> {
+    let (pts, origin) = rebuild::to_map(r, base_from_lidar);
+    let robot = robot_pose(&PoseMap::from_iso(r.map_from_base));
+    mapper.update_sweep(pts, origin, &robot, r.t_s)
+}
+
 /// See the module docs.
 pub struct TerrainMap {
     mapper: mapping::Mapper,
@@ -230,9 +241,7 @@ impl TerrainMap {
             return Ok(Vec::new());
         };
         for r in kept.after(sh.fed_until, n) {
-            let (pts, origin) = rebuild::to_map(&r, base_from_lidar);
-            let robot = robot_pose(&PoseMap::from_iso(r.map_from_base));
-            match sh.mapper.update_sweep(pts, origin, &robot, r.t_s) {
+            match map_kept(&mut sh.mapper, &r, base_from_lidar) {
                 Ok(u) => self.cleared_cells += u.cleared_cells,
                 Err(e) => {
                     // The shadow cannot go past a sweep it refuses: this rebuild is given up,
@@ -296,9 +305,7 @@ impl TerrainMap {
                 return Ok(Some(m));
             }
             for r in batch {
-                let (pts, origin) = rebuild::to_map(&r, base_from_lidar);
-                let robot = robot_pose(&PoseMap::from_iso(r.map_from_base));
-                m.update_sweep(pts, origin, &robot, r.t_s)?;
+                map_kept(&mut m, &r, base_from_lidar)?;
                 after = Some(r.t_s);
             }
         }

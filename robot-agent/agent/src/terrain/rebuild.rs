@@ -243,18 +243,18 @@ impl SweepStore {
             .iter()
             .map(|s| map_from_slam_at(s.t_s).map_or(s.mapped_at, |m| m * s.slam_from_base))
             .collect();
-        let moved = |s: &KeptSweep, p: &Isometry3<f64>| {
-            (s.mapped_at.translation.vector - p.translation.vector).norm() > self.min_move_m
-        };
-        let fed = |s: &KeptSweep| fed_until.is_some_and(|f| s.t_s <= f);
-        self.last_move = self
+        // How far each kept sweep moves.
+        let moves: Vec<f64> = self
             .sweeps
             .iter()
             .zip(&poses)
-            .fold((0.0, 0), |(m, n), (s, p)| {
-                let d = (s.mapped_at.translation.vector - p.translation.vector).norm();
-                (d.max(m), n + usize::from(d > self.min_move_m))
-            });
+            .map(|(s, p)| (s.mapped_at.translation.vector - p.translation.vector).norm())
+            .collect();
+        let moved = |d: f64| d > self.min_move_m;
+        self.last_move = (
+            moves.iter().copied().fold(0.0, f64::max),
+            moves.iter().filter(|&&d| moved(d)).count(),
+        );
         if self.last_move.1 == 0 {
             return Correction::None;
         }
@@ -262,8 +262,8 @@ impl SweepStore {
             || self
                 .sweeps
                 .iter()
-                .zip(&poses)
-                .any(|(s, p)| fed(s) && moved(s, p));
+                .zip(&moves)
+                .any(|(s, &d)| fed_until.is_some_and(|f| s.t_s <= f) && moved(d));
         for (s, p) in self.sweeps.iter_mut().zip(&poses) {
             if restart || fed_until.is_none_or(|f| s.t_s > f) {
                 s.mapped_at = *p;
