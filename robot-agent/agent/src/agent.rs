@@ -298,8 +298,15 @@ impl Agent {
         );
         // A grid change on the path asks for a replan now.
         if self.path_dirty && self.mission.nav().is_driving() {
-            let grid = self.plan_grid(&loc.pose.planar);
-            rep.path_blocked = self.mission.nav_mut().check_path(&grid, &loc.pose.planar);
+            let pose = loc.pose.planar;
+            let mut grid = self.terrain.path_check_grid(
+                &pose,
+                self.mission.nav().path_ahead(&pose),
+                self.driver.lasting_stop_m(),
+            );
+            self.zones
+                .stamp_keep_out(&mut grid, self.keep_out_margin_m, (pose.x_m, pose.y_m));
+            rep.path_blocked = self.mission.nav_mut().check_path(&grid, &pose);
             self.path_dirty = false;
         }
         probe.mark(Stage::Safety);

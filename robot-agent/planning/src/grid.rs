@@ -177,6 +177,37 @@ impl PlanGrid {
         g
     }
 
+    /// A grid over `window` in which only the cells a check of the polyline `path` reads (the
+    /// samples of [`crate::smooth::segment_free`] on each of its segments) are filled by
+    /// `cell_at(global_cx, global_cy)` through `rule`; every other cell is free. The safety
+    /// stage checks the path ahead after every sweep: a few hundred cells, where the whole
+    /// window is 90 000.
+    pub fn along_path(
+        window: &GridWindow,
+        rule: &CostRule,
+        path: &[(f64, f64)],
+        mut cell_at: impl FnMut(i64, i64) -> Cell,
+    ) -> Self {
+        let s = window.lattice.cell_size_f64();
+        let origin = (window.min_cx as f64 * s, window.min_cy as f64 * s);
+        let mut g = Self::new(window.width, window.height, s, origin);
+        let mut last = None;
+        for w in path.windows(2) {
+            for p in crate::smooth::segment_samples(s, w[0], w[1]) {
+                let (x, y) = g.world_to_cell_unbounded(p.0, p.1);
+                if last == Some((x, y)) || !g.contains(x, y) {
+                    continue;
+                }
+                last = Some((x, y));
+                let (p, u) = rule.penalty_of(&cell_at(window.min_cx + x, window.min_cy + y));
+                let i = g.index(CellXY::new(x as u32, y as u32));
+                g.penalty_m[i] = p;
+                g.unknown[i] = u;
+            }
+        }
+        g
+    }
+
     /// A grid over `window` filled from lattice tiles; cells of absent tiles are unknown.
     /// Tiles on another lattice than the window's are ignored.
     pub fn from_tiles<'a>(
@@ -405,6 +436,40 @@ mod tests {
         assert!(!g.is_free(2, 3), "tile cell (1, 2) is window cell (2, 3)");
         assert!(g.is_unknown(5, 5));
         assert!((g.origin_m().0 + 0.2).abs() < 1e-12);
+    }
+
+    proptest::proptest! {
+        /// The path check reads only the cells along the path, so a grid filled only there must
+        /// answer every segment of it as the whole window does: paths through cluttered
+        /// windows, leaving them, and with segments ending exactly on cell boundaries.
+        #[test]
+        fn a_grid_along_a_path_checks_it_as_the_whole_window_does(
+            seed in 0u64..u64::MAX,
+            pts in proptest::collection::vec((-40i32..40, -40i32..40), 2..8),
+        ) {
+            let window = GridWindow::centred(Lattice::default(), 0.3, -0.1, 60);
+            let state = |cx: i64, cy: i64| {
+                let h = (cx.wrapping_mul(73_856_093) ^ cy.wrapping_mul(19_349_663)) as u64 ^ seed;
+                match h.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 61 {
+                    0 => CellState::Obstacle,
+                    1 => CellState::Unknown,
+                    _ => CellState::Traversable,
+                }
+            };
+            let cell = |cx, cy| Cell { state: state(cx, cy), ..Cell::UNKNOWN };
+            let rule = CostRule::default();
+            // Tenths of a metre: half of the points land on cell edges.
+            let path: Vec<(f64, f64)> =
+                pts.iter().map(|&(x, y)| (f64::from(x) * 0.1, f64::from(y) * 0.1)).collect();
+            let whole = PlanGrid::from_cells(&window, &rule, cell);
+            let along = PlanGrid::along_path(&window, &rule, &path, cell);
+            for w in path.windows(2) {
+                proptest::prop_assert_eq!(
+                    crate::smooth::segment_free(&whole, w[0], w[1]),
+                    crate::smooth::segment_free(&along, w[0], w[1])
+                );
+            }
+        }
     }
 
     #[test]

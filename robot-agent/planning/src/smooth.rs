@@ -57,11 +57,21 @@ pub fn point_free(grid: &PlanGrid, p: (f64, f64)) -> bool {
 
 /// Whether the segment a-b stays in enterable cells (sampled every eighth of a cell).
 pub fn segment_free(grid: &PlanGrid, a: (f64, f64), b: (f64, f64)) -> bool {
+    segment_samples(grid.cell_size_m(), a, b).all(|p| point_free(grid, p))
+}
+
+/// The points [`segment_free`] tests on the segment a-b: both ends and every eighth of a
+/// `cell_size_m` between them.
+pub fn segment_samples(
+    cell_size_m: f64,
+    a: (f64, f64),
+    b: (f64, f64),
+) -> impl Iterator<Item = (f64, f64)> {
     let len = (b.0 - a.0).hypot(b.1 - a.1);
-    let steps = (len / (grid.cell_size_m() / 8.0)).ceil().max(1.0) as usize;
-    (0..=steps).all(|k| {
+    let steps = (len / (cell_size_m / 8.0)).ceil().max(1.0) as usize;
+    (0..=steps).map(move |k| {
         let t = k as f64 / steps as f64;
-        point_free(grid, (a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1)))
+        (a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1))
     })
 }
 

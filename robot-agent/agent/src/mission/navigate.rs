@@ -192,13 +192,19 @@ impl Navigator {
                 || t_s - self.last_plan_t_s >= 1.0 / self.planner_cfg.replan_rate_hz)
     }
 
+    /// The stretch of the path [`Navigator::check_path`] checks from `pose`: from the path point
+    /// nearest the robot on (empty without a path of two points).
+    pub fn path_ahead(&self, pose: &Pose2) -> &[(f64, f64)] {
+        if self.path.len() < 2 {
+            return &[];
+        }
+        &self.path[nearest_index(&self.path, (pose.x_m, pose.y_m))..]
+    }
+
     /// Checks the path ahead of the robot against a new grid; a blocked stretch asks for a replan.
     pub fn check_path(&mut self, grid: &PlanGrid, pose: &Pose2) -> bool {
-        if self.path.len() < 2 {
-            return false;
-        }
-        let start = nearest_index(&self.path, (pose.x_m, pose.y_m));
-        let blocked = self.path[start..]
+        let blocked = self
+            .path_ahead(pose)
             .windows(2)
             .any(|w| !planning::smooth::segment_free(grid, w[0], w[1]));
         if blocked {

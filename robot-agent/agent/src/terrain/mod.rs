@@ -363,21 +363,59 @@ impl TerrainMap {
     ) -> PlanGrid {
         let rule = CostRule::from_config(&self.planner);
         let mut grid = PlanGrid::from_cells(window, &rule, |cx, cy| view.get(cx, cy));
-        let r_m = self.body.footprint_radius_m;
-        let robot = (pose.x_m, pose.y_m);
-        layers::clear_footprint(&mut grid, window, robot, r_m, |cx, cy| {
+        self.stamp_layers(&mut grid, window, pose, stop_m, |cx, cy| {
             view.get(cx, cy).state
         });
+        grid
+    }
+
+    /// The planning grid around `pose` (as [`TerrainMap::plan_grid`]) filled only where a check
+    /// of `path` reads it ([`PlanGrid::along_path`]): the same answer for that path at a small
+    /// part of the cost, for the check after every sweep.
+    pub fn path_check_grid(
+        &self,
+        pose: &Pose2,
+        path: &[(f64, f64)],
+        stop_m: Option<(f64, f64)>,
+    ) -> PlanGrid {
+        let window = GridWindow::centred(
+            self.mapper.lattice(),
+            pose.x_m,
+            pose.y_m,
+            self.planner.num_of_grid_cells,
+        );
+        let rule = CostRule::from_config(&self.planner);
+        // Cells of the window read straight from the mapper: a window's view is a copy of all
+        // of them.
+        let m = &self.mapper;
+        let mut grid = PlanGrid::along_path(&window, &rule, path, |cx, cy| m.cell(cx, cy));
+        self.stamp_layers(&mut grid, &window, pose, stop_m, |cx, cy| {
+            m.cell(cx, cy).state
+        });
+        grid
+    }
+
+    /// The footprint clearing and a lasting stop's disc, over a planning grid built on `window`.
+    fn stamp_layers(
+        &self,
+        grid: &mut PlanGrid,
+        window: &GridWindow,
+        pose: &Pose2,
+        stop_m: Option<(f64, f64)>,
+        state_of: impl Fn(i64, i64) -> common::grid::CellState,
+    ) {
+        let r_m = self.body.footprint_radius_m;
+        let robot = (pose.x_m, pose.y_m);
+        layers::clear_footprint(grid, window, robot, r_m, state_of);
         if let Some(at) = stop_m {
             let s = grid.cell_size_m();
             layers::stamp_blocked_disc(
-                &mut grid,
+                grid,
                 at,
                 self.body.stop_reach_m + s,
                 Some((robot, r_m + 0.5 * s)),
             );
         }
-        grid
     }
 
     /// The grid a taught route's corridor is checked on (see [`layers::corridor`]), with a
