@@ -273,7 +273,14 @@ impl Agent {
                         &sweep.points,
                     );
                 }
-                Err(e) => self.last_error = Some(format!("mapping: {e}")),
+                Err(e) => {
+                    // Counted with the sweeps left out of the map: the operator sees a map
+                    // that stopped growing explained.
+                    self.scans_not_mapped += 1;
+                    rep.not_mapped = true;
+                    tracing::debug!("sweep at {:.2} s not mapped: {e}", scan.stamp_s);
+                    self.last_error = Some(format!("mapping: {e}"));
+                }
             }
         } else {
             self.scans_not_mapped += 1;

@@ -48,8 +48,10 @@ pub enum MapError {
     /// The robot pose or the time is not finite.
     #[error("robot pose or time is not finite")]
     BadPose,
-    /// Time went backwards.
-    #[error("time {t_s} s is before the previous update ({previous_s} s)")]
+    /// Time went backwards by an evidence epoch or more.
+    #[error(
+        "time {t_s} s is an evidence epoch or more before the previous update ({previous_s} s)"
+    )]
     TimeWentBack {
         /// This update.
         t_s: f64,
@@ -318,7 +320,7 @@ impl Mapper {
         t_s: f64,
         kind: Evidence,
     ) -> Result<UpdateReport, MapError> {
-        self.begin_update(sensor, robot, t_s)?;
+        let t_s = self.begin_update(sensor, robot, t_s)?;
         let mut rep = UpdateReport {
             points_in: pts.len(),
             ..Default::default()
@@ -355,32 +357,39 @@ impl Mapper {
         Ok(rep)
     }
 
-    /// Refuses a non-finite pose, sensor or time and time going back; otherwise takes the
-    /// update's robot pose and time and starts a new scan.
+    /// Refuses a non-finite pose, sensor or time, and time going back by an evidence epoch
+    /// (`evidence_epoch_s`) or more; otherwise takes the robot pose and returns the time the
+    /// update counts as. Sensors stamp differently: a LiDAR sweep carries its revolution's
+    /// start, delivered a period later, while a depth frame carries its capture time, so a
+    /// sweep routinely arrives up to a period older than the depth frame mapped just before
+    /// it. Such an update is merged as of the newest time (it belongs to the same epoch);
+    /// refusing it dropped every LiDAR sweep of a robot with a depth camera.
     fn begin_update(
         &mut self,
         sensor: Option<[f64; 3]>,
         robot: &RobotPose,
         t_s: f64,
-    ) -> Result<(), MapError> {
+    ) -> Result<f64, MapError> {
         if sensor.is_some_and(|o| !o.iter().all(|v| v.is_finite())) {
             return Err(MapError::BadPose);
         }
         if !robot.is_finite() || !t_s.is_finite() {
             return Err(MapError::BadPose);
         }
+        let mut t_eff = t_s;
         if let Some(prev) = self.last_t_s {
-            if t_s < prev {
+            if t_s <= prev - self.cfg.evidence_epoch_s {
                 return Err(MapError::TimeWentBack {
                     t_s,
                     previous_s: prev,
                 });
             }
+            t_eff = t_s.max(prev);
         }
-        self.last_t_s = Some(t_s);
+        self.last_t_s = Some(t_eff);
         self.robot = Some(*robot);
         self.scan_id = self.scan_id.wrapping_add(1);
-        Ok(())
+        Ok(t_eff)
     }
 
     /// Horizontal distance from the robot to a cell's centre, metres.

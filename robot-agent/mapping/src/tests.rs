@@ -333,12 +333,49 @@ fn bad_input_is_a_typed_error() {
         )
         .unwrap();
     assert_eq!(r.dropped_non_finite, 1);
-    assert!(m.update_points(vec![], &ok, 0.5, Evidence::Scan).is_err());
+    assert!(matches!(
+        m.update_points(vec![], &ok, 0.0, Evidence::Scan),
+        Err(crate::MapError::TimeWentBack { .. })
+    ));
     assert!(Mapper::new(Config {
         grid_size_m: -1.0,
         ..Config::default()
     })
     .is_err());
+}
+
+/// A LiDAR sweep is stamped at its revolution's start and arrives a period later; a depth
+/// frame mapped in between carries a newer stamp. The sweep must still be mapped (it was
+/// refused as "time went back", so a robot with a depth camera mapped only the camera's 5 m).
+#[test]
+fn a_sweep_stamped_before_the_last_depth_frame_is_still_mapped() {
+    let mut m = Mapper::new(Config::default()).unwrap();
+    let robot = RobotPose {
+        z_m: 0.0,
+        ..Default::default()
+    };
+    let flat = |_: f64, _: f64| 0.0;
+    let mut rng = Rng::new(3);
+    // The camera's frame: a patch of ground a metre ahead, at 2.05 s.
+    let patch: Vec<[f32; 3]> = (0..100)
+        .map(|i| [1.0 + 0.01 * (i % 10) as f32, 0.01 * (i / 10) as f32, 0.0])
+        .collect();
+    m.update_points(patch, &robot, 2.05, Evidence::Scan)
+        .unwrap();
+    // The sweep that started at 2.0 s, delivered after it.
+    let pts = cast_scan(&flat, [0.0, 0.0, SENSOR_H], &spec(), &mut rng);
+    let rep = m
+        .update_sweep(pts, [0.0, 0.0, SENSOR_H], &robot, 2.0)
+        .expect("a sweep a period older than the last frame is mapped");
+    assert!(rep.dirty_cells > 100, "{rep:?}");
+    let (cx, cy) = cell_of(&m, 8.0, 0.0);
+    assert!(m.height_m(cx, cy).is_some(), "ground 8 m out mapped");
+    // Older than an evidence epoch is still refused.
+    let far_back = cast_scan(&flat, [0.0, 0.0, SENSOR_H], &spec(), &mut rng);
+    assert!(matches!(
+        m.update_sweep(far_back, [0.0, 0.0, SENSOR_H], &robot, 1.0),
+        Err(crate::MapError::TimeWentBack { .. })
+    ));
 }
 
 #[test]
