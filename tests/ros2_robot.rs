@@ -334,10 +334,19 @@ fn rmw_keys_goal_is_reached_through_lidar_odometry_and_imu_faults() {
             &cuts[1],
             "--silence",
             &cuts[2],
+            "--depth",
         ],
         dir.path(),
     );
-    let mut agent = Agent::start(&world, &station, "rmw", &[], dir.path());
+    // With the depth camera too: its frames are stamped at capture, a LiDAR sweep at its
+    // revolution's start, so sweeps arrive older than the last frame mapped.
+    let mut agent = Agent::start(
+        &world,
+        &station,
+        "rmw",
+        &["--depth", "ros2:depth/points"],
+        dir.path(),
+    );
     wait_up(&station, &mut agent);
     send_goal(&station, GOAL);
     let observer = Observer::connect(&world.endpoint);
@@ -425,4 +434,14 @@ fn rmw_keys_goal_is_reached_through_lidar_odometry_and_imu_faults() {
     }
     let lidar = fault_episodes(&summary, "lidar").expect("lidar fault in the summary");
     assert!(lidar["stopped_base"] == true, "{lidar}");
+    // Both sensors mapped: the depth frames, and the sweeps between them (each sweep was
+    // refused as "time went back" behind a newer depth frame before).
+    let scans = summary["scans"].as_u64().unwrap_or(0);
+    let mapped = summary["map"]["scans_mapped"].as_u64().unwrap_or(0);
+    let frames = summary["depth_frames"].as_u64().unwrap_or(0);
+    assert!(frames > 100, "depth frames mapped: {frames}: {summary}");
+    assert!(
+        scans > 100 && mapped * 10 >= scans * 9,
+        "{mapped} of {scans} sweeps mapped beside the depth camera: {summary}"
+    );
 }
