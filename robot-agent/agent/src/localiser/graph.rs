@@ -193,6 +193,13 @@ impl GraphLocaliser {
                 );
                 self.stats.loop_poor_fit += 1;
             }
+            Err(LoopRejection::Degenerate { constraint }) => {
+                // Counted with the poor fits: it fits, but not firmly enough to be a loop.
+                tracing::debug!(
+                    "pose graph: loop candidate at keyframe {kf}: fit free along a direction (constraint {constraint:.4})"
+                );
+                self.stats.loop_poor_fit += 1;
+            }
         }
         if optimise {
             self.graph.optimise();

@@ -204,12 +204,10 @@ impl TerrainMap {
             rebuild::Correction::None => return Ok(Vec::new()),
             rebuild::Correction::Retarget => self.retargets += 1,
             rebuild::Correction::Restart => {
-                self.shadow = Some(rebuild::Shadow {
-                    mapper: mapping::Mapper::new(self.mapper.config().clone())?,
-                    fed_until: None,
-                    fed: 0,
-                    started_s: t_s,
-                });
+                self.shadow = Some(rebuild::Shadow::new(
+                    mapping::Mapper::new(self.mapper.config().clone())?,
+                    t_s,
+                ));
             }
         }
         if self.sweeps_per_tick == 0 {
@@ -237,10 +235,12 @@ impl TerrainMap {
         base_from_lidar: &nalgebra::Isometry3<f64>,
         n: usize,
     ) -> Result<Vec<TileIndex>, mapping::MapError> {
+        let radius_m = self.map_follow_radius_m;
         let (Some(kept), Some(sh)) = (self.kept.as_ref(), self.shadow.as_mut()) else {
             return Ok(Vec::new());
         };
         for r in kept.after(sh.fed_until, n) {
+            sh.follow_frames_before(r.t_s, radius_m);
             match map_kept(&mut sh.mapper, &r, base_from_lidar) {
                 Ok(u) => self.cleared_cells += u.cleared_cells,
                 Err(e) => {
@@ -256,9 +256,12 @@ impl TerrainMap {
         if kept.has_after(sh.fed_until) {
             return Ok(Vec::new());
         }
-        let Some(sh) = self.shadow.take() else {
+        let Some(mut sh) = self.shadow.take() else {
             return Ok(Vec::new());
         };
+        // Every kept sweep is fed: the shifts since the newest one come now, as they came to
+        // the live map.
+        sh.follow_frames_before(f64::INFINITY, radius_m);
         tracing::info!(
             "map rebuild swapped in at {t_s:.2} s: {} kept sweeps fed since {:.2} s",
             sh.fed,
@@ -326,9 +329,15 @@ impl TerrainMap {
     /// draws no false steps between old and new sweeps (docs/algorithms.md §4.13).
     pub fn follow_frame(&mut self, shift: &FrameShift) {
         self.mapper.follow_frame(shift, self.map_follow_radius_m);
-        // The shadow's cells are in the same frame and follow with it.
+        // The shadow is behind: it follows the shift once it has fed the sweeps the live map
+        // had taken before it (see `rebuild::Shadow::follow_frames_before`), not now.
         if let Some(sh) = self.shadow.as_mut() {
-            sh.mapper.follow_frame(shift, self.map_follow_radius_m);
+            let after = self
+                .kept
+                .as_ref()
+                .and_then(rebuild::SweepStore::newest_t_s)
+                .unwrap_or(f64::NEG_INFINITY);
+            sh.pending_shifts.push((after, *shift));
         }
     }
 

@@ -319,6 +319,11 @@ impl SweepStore {
         self.last_move
     }
 
+    /// Time of the newest kept sweep, seconds (None: none kept).
+    pub fn newest_t_s(&self) -> Option<f64> {
+        self.sweeps.last().map(|s| s.t_s)
+    }
+
     /// Some kept sweep is newer than `after` (any when None).
     pub fn has_after(&self, after: Option<f64>) -> bool {
         self.sweeps
@@ -337,6 +342,36 @@ pub struct Shadow {
     pub fed: usize,
     /// Time of the live sweep that started it, seconds.
     pub started_s: f64,
+    /// Frame shifts the live map took while this rebuild ran, each with the time of the newest
+    /// kept sweep when it came, oldest first: the shadow takes each one once it has fed that
+    /// sweep, before the next ([`Shadow::follow_frames_before`]).
+    pub pending_shifts: Vec<(f64, Isometry3<f64>)>,
+}
+
+impl Shadow {
+    /// A rebuild from the first kept sweep, started by the live sweep at `started_s`.
+    pub fn new(mapper: mapping::Mapper, started_s: f64) -> Self {
+        Self {
+            mapper,
+            fed_until: None,
+            fed: 0,
+            started_s,
+            pending_shifts: Vec::new(),
+        }
+    }
+
+    /// The frame shifts that came before the kept sweep at `t_s` was mapped live are applied
+    /// to the shadow now, at the point of its feed where the live map took them: the kept
+    /// sweeps fed after a shift were mapped (and kept) in the shifted frame, those fed before
+    /// it in the old one, and applying a shift when it comes instead (with the shadow still
+    /// feeding sweeps from minutes earlier) would move the heights of sweeps placed in the
+    /// graph's frame and set them off against the sweeps fed after, which are not moved.
+    pub fn follow_frames_before(&mut self, t_s: f64, radius_m: f64) {
+        let n = self.pending_shifts.partition_point(|(t, _)| *t < t_s);
+        for (_, shift) in self.pending_shifts.drain(..n) {
+            self.mapper.follow_frame(&shift, radius_m);
+        }
+    }
 }
 
 /// A kept sweep's returns in the map frame and the sensor's position there.

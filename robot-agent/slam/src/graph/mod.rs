@@ -73,8 +73,12 @@ pub struct GraphConfig {
     pub loop_max_offset_m: f64,
     /// A loop is accepted when the ICP explains at least this share of the reading...
     pub loop_min_inlier_ratio: f64,
-    /// ...with a weighted RMS point-to-plane residual at most this, metres.
+    /// ...with a weighted RMS point-to-plane residual at most this, metres...
     pub loop_max_rms_m: f64,
+    /// ...and when the fit pins the reading in every direction: the smallest eigenvalue of the
+    /// mean `n n^T` over the paired points' target normals is at least this (0..1/3; near 0
+    /// when some direction is free, as along a corridor's walls). See [`translation_constraint`].
+    pub loop_min_constraint: f64,
     /// Loop factor translation sigma, metres.
     pub loop_sigma_trans_m: f64,
     /// Loop factor rotation sigma, radians.
@@ -128,6 +132,7 @@ impl Default for GraphConfig {
             loop_max_offset_m: 8.0,
             loop_min_inlier_ratio: 0.5,
             loop_max_rms_m: 0.15,
+            loop_min_constraint: 0.01,
             loop_sigma_trans_m: 0.1,
             loop_sigma_rot_rad: 0.01,
             loop_cauchy_sigmas: 3.0,
@@ -158,6 +163,12 @@ pub enum LoopRejection {
         inlier_ratio: f64,
         /// Weighted RMS residual, metres.
         rms_m: f64,
+    },
+    /// It fits, but some direction is left free (the fit could slide along it): see
+    /// [`translation_constraint`].
+    Degenerate {
+        /// The weakest direction's share of the paired normals, 0..1/3.
+        constraint: f64,
     },
 }
 
@@ -211,7 +222,63 @@ pub fn verify_loop(
             rms_m: fine.residual_rms_m,
         });
     }
+    let constraint = translation_constraint(
+        reading,
+        target,
+        &index,
+        &fine.pose,
+        (cfg.loop_icp_max_match_dist_m / 3.0) as f32,
+    );
+    if constraint < cfg.loop_min_constraint {
+        return Err(LoopRejection::Degenerate { constraint });
+    }
     Ok((fine.pose, fine.inlier_ratio, fine.residual_rms_m))
+}
+
+/// How firmly a fit pins the reading in translation (the degeneracy test of Zhang, Kaess and
+/// Singh, ICRA 2016, on the translation block of the point-to-plane Hessian): the reading's
+/// points at `pose` are paired with their nearest target point within `max_dist_m`, and the
+/// smallest eigenvalue of the mean `n n^T` of the paired target normals is returned (0 with no
+/// pair). Each pair constrains the fit only along its normal, so a direction no normal points
+/// along is free: along a corridor of walls (normals across it and up) the eigenvalue is near 0
+/// and a fit there may have slid by any amount, however many points it explains; normals spread
+/// evenly give 1/3. The inlier share alone cannot tell (a wall fits its wall at any offset).
+pub fn translation_constraint(
+    reading: &OrientedCloud,
+    target: &OrientedCloud,
+    index: &KdIndex,
+    pose: &Isometry3<f64>,
+    max_dist_m: f32,
+) -> f64 {
+    let t = pose.cast::<f32>();
+    let mut m = Matrix3::<f64>::zeros();
+    let mut n_pairs = 0usize;
+    for p in &reading.points {
+        let q = t * nalgebra::Point3::new(p[0], p[1], p[2]);
+        let Some((j, d)) = index.nearest(&[q.x, q.y, q.z]) else {
+            continue;
+        };
+        // Squared distances.
+        if d > max_dist_m * max_dist_m {
+            continue;
+        }
+        let n = target.normals[j as usize];
+        if !n.iter().all(|c| c.is_finite()) {
+            continue;
+        }
+        let n = Vector3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2]));
+        m += n * n.transpose();
+        n_pairs += 1;
+    }
+    if n_pairs == 0 {
+        return 0.0;
+    }
+    (m / n_pairs as f64)
+        .symmetric_eigenvalues()
+        .iter()
+        .copied()
+        .fold(f64::INFINITY, f64::min)
+        .max(0.0)
 }
 
 /// The graph: keyframes, factors and the place database.

@@ -220,6 +220,69 @@ fn verification_accepts_a_true_loop_and_rejects_a_wrong_one() {
     assert!(wrong.is_err(), "wrong loop accepted: {wrong:?}");
 }
 
+/// Two parallel walls 3 m high along x, 6 m apart, sampled every 0.3 m: a corridor.
+fn corridor() -> Vec<[f32; 3]> {
+    let mut v = Vec::new();
+    for i in 0..=600 {
+        let x = -90.0 + 0.3 * i as f32;
+        for j in 0..=10 {
+            let z = 0.3 * j as f32;
+            v.push([x, -3.0, z]);
+            v.push([x, 3.0, z]);
+        }
+    }
+    v
+}
+
+#[test]
+fn a_true_revisit_is_pinned_in_every_direction_and_a_fit_sliding_along_walls_is_not() {
+    let cfg = GraphConfig::default();
+    // A true revisit among boxes (as above): accepted, and its paired normals pin x, y and z.
+    let w = world(4, 200.0, 200);
+    let a = pose(0.0, 0.0, 0.2);
+    let b = pose(1.2, -0.8, 0.2 + 0.9);
+    let ca = oriented(scan(&w, &a, 40.0, 1));
+    let cb = oriented(scan(&w, &b, 40.0, 2));
+    let init = a.inverse() * b * se3::from_xyz_rpy([0.3, -0.2, 0.0], [0.0, 0.0, 0.05]);
+    let index = crate::index::KdIndex::build(&ca.points);
+    let (measured, inl, rms) = verify_loop(&cb, &ca, &init, &cfg).expect("true loop accepted");
+    let true_c = translation_constraint(&cb, &ca, &index, &measured, 1.0);
+    println!("true revisit: inliers {inl:.2}, rms {rms:.3} m, constraint {true_c:.4}");
+    assert!(true_c >= cfg.loop_min_constraint, "{true_c}");
+    // A corridor: the robot 4 m further along it taken for the same place. The walls fit
+    // their walls at any offset along them and the ground rings are flat, so the ICP explains
+    // the scan as well as at a true revisit; only the directions the normals pin tell.
+    let w = corridor();
+    let here = pose(0.0, 0.0, 0.0);
+    let further = pose(4.0, 0.0, 0.0);
+    let ch = oriented(scan(&w, &here, 40.0, 4));
+    let cf = oriented(scan(&w, &further, 40.0, 5));
+    let index = crate::index::KdIndex::build(&ch.points);
+    let slid = cfg_without_constraint(&cfg);
+    let (m, inl, rms) =
+        verify_loop(&cf, &ch, &Isometry3::identity(), &slid).expect("the inlier gate passes it");
+    let c = translation_constraint(&cf, &ch, &index, &m, 1.0);
+    let err = (m.translation.vector - (here.inverse() * further).translation.vector).norm();
+    println!(
+        "corridor 4 m apart: inliers {inl:.2}, rms {rms:.3} m, constraint {c:.5}, error {err:.2} m"
+    );
+    assert!(err > 2.0, "the fit slid: {err} m off the truth");
+    assert!(c < 0.1 * true_c, "{c} against {true_c}");
+    let got = verify_loop(&cf, &ch, &Isometry3::identity(), &cfg);
+    assert!(
+        matches!(got, Err(LoopRejection::Degenerate { .. })),
+        "a sliding fit is not a loop: {got:?}"
+    );
+}
+
+/// `cfg` with the constraint test off: what the verification accepted before it.
+fn cfg_without_constraint(cfg: &GraphConfig) -> GraphConfig {
+    GraphConfig {
+        loop_min_constraint: 0.0,
+        ..cfg.clone()
+    }
+}
+
 /// Drives the circuit `truth` through the synthetic world `w` with odometry `odom`, a keyframe and
 /// its scan at every pose, and a loop search after each; returns the graph and the loops found.
 fn drive_circuit(
