@@ -434,8 +434,9 @@ fn rmw_keys_goal_is_reached_through_lidar_odometry_and_imu_faults() {
     }
     let lidar = fault_episodes(&summary, "lidar").expect("lidar fault in the summary");
     assert!(lidar["stopped_base"] == true, "{lidar}");
-    // Both sensors mapped: the depth frames, and the sweeps between them (each sweep was
-    // refused as "time went back" behind a newer depth frame before).
+    // Both sensors mapped: the depth frames, and the sweeps between them. (This world's frames
+    // fall on sweep boundaries, so it does not reproduce a sweep arriving older than the last
+    // frame; the mapper's unit test does.)
     let scans = summary["scans"].as_u64().unwrap_or(0);
     let mapped = summary["map"]["scans_mapped"].as_u64().unwrap_or(0);
     let frames = summary["depth_frames"].as_u64().unwrap_or(0);

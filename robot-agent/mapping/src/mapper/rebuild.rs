@@ -147,13 +147,13 @@ mod tests {
             );
         }
         assert!(tiles.windows(2).all(|w| w[0] < w[1]));
-        // The map goes on: a later sweep is accepted, an earlier one is not.
+        // The map goes on: a later sweep is accepted, one an evidence epoch older is not.
         let robot = RobotPose::default();
         assert!(drifted
             .update_sweep(Vec::new(), [0.0, 0.0, 0.7], &robot, 10.6)
             .is_ok());
         assert!(drifted
-            .update_sweep(Vec::new(), [0.0, 0.0, 0.7], &robot, 10.1)
+            .update_sweep(Vec::new(), [0.0, 0.0, 0.7], &robot, 9.0)
             .is_err());
     }
 }
