@@ -168,13 +168,19 @@ impl PlanGrid {
         for y in 0..window.height {
             for x in 0..window.width {
                 let cell = cell_at(window.min_cx + i64::from(x), window.min_cy + i64::from(y));
-                let (p, u) = rule.penalty_of(&cell);
-                let i = g.index(CellXY::new(x, y));
-                g.penalty_m[i] = p;
-                g.unknown[i] = u;
+                g.fill(CellXY::new(x, y), rule, &cell);
             }
         }
         g
+    }
+
+    /// Sets the in-grid cell `c` from a lattice cell through `rule` (its penalty and unknown
+    /// flag as they are, no clamping: `rule` gives no negative penalty).
+    fn fill(&mut self, c: CellXY, rule: &CostRule, cell: &Cell) {
+        let (p, u) = rule.penalty_of(cell);
+        let i = self.index(c);
+        self.penalty_m[i] = p;
+        self.unknown[i] = u;
     }
 
     /// A grid over `window` in which only the cells a check of the polyline `path` reads (the
@@ -199,10 +205,8 @@ impl PlanGrid {
                     continue;
                 }
                 last = Some((x, y));
-                let (p, u) = rule.penalty_of(&cell_at(window.min_cx + x, window.min_cy + y));
-                let i = g.index(CellXY::new(x as u32, y as u32));
-                g.penalty_m[i] = p;
-                g.unknown[i] = u;
+                let cell = cell_at(window.min_cx + x, window.min_cy + y);
+                g.fill(CellXY::new(x as u32, y as u32), rule, &cell);
             }
         }
         g
@@ -232,10 +236,8 @@ impl PlanGrid {
                     if wx < 0 || wx >= i64::from(window.width) {
                         continue;
                     }
-                    let (p, u) = rule.penalty_of(&tile.cells[(row * n + col) as usize]);
-                    let i = g.index(CellXY::new(wx as u32, wy as u32));
-                    g.penalty_m[i] = p;
-                    g.unknown[i] = u;
+                    let cell = &tile.cells[(row * n + col) as usize];
+                    g.fill(CellXY::new(wx as u32, wy as u32), rule, cell);
                 }
             }
         }

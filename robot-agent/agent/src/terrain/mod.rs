@@ -344,16 +344,21 @@ impl TerrainMap {
     /// The planning window around `pose` and the mapper's cells in it: what both the planning
     /// grid and a route's corridor grid are built from (read once per cycle).
     pub fn window(&self, pose: &Pose2) -> (GridWindow, mapping::PlannerView) {
-        let window = GridWindow::centred(
-            self.mapper.lattice(),
-            pose.x_m,
-            pose.y_m,
-            self.planner.num_of_grid_cells,
-        );
+        let window = self.window_at(pose);
         let view = self
             .mapper
             .view(window.min_cx, window.min_cy, window.width, window.height);
         (window, view)
+    }
+
+    /// The planning window (`num_of_grid_cells` square) centred on `pose`.
+    fn window_at(&self, pose: &Pose2) -> GridWindow {
+        GridWindow::centred(
+            self.mapper.lattice(),
+            pose.x_m,
+            pose.y_m,
+            self.planner.num_of_grid_cells,
+        )
     }
 
     /// The planning grid around `pose`, with a lasting stop at `stop_m` stamped in.
@@ -387,12 +392,7 @@ impl TerrainMap {
         path: &[(f64, f64)],
         stop_m: Option<(f64, f64)>,
     ) -> PlanGrid {
-        let window = GridWindow::centred(
-            self.mapper.lattice(),
-            pose.x_m,
-            pose.y_m,
-            self.planner.num_of_grid_cells,
-        );
+        let window = self.window_at(pose);
         let rule = CostRule::from_config(&self.planner);
         // Cells of the window read straight from the mapper: a window's view is a copy of all
         // of them.
