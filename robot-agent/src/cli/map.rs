@@ -425,9 +425,10 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
         );
         let o = &r.obstacle_positions;
         eprintln!(
-            "poles and trunks: {} of {} found, centroid error mean {:.3} m median {:.3} m max {:.3} m, cells {:.3} m from the surface; graph {:?}",
+            "poles and trunks: {} of {} found, centroid error mean {:.3} m median {:.3} m max {:.3} m, cells {:.3} m from the surface; raised cells only: {} found, mean {:.3} m median {:.3} m max {:.3} m; graph {:?}",
             o.found, o.objects, o.mean_error_m, o.median_error_m, o.max_error_m,
-            o.mean_surface_distance_m, r.graph
+            o.mean_surface_distance_m, o.body.found, o.body.mean_error_m,
+            o.body.median_error_m, o.body.max_error_m, r.graph
         );
         println!(
             "cells {} accuracy {:.4} obstacle_recall {:.4} false_obstacle_rate {:.4} curb5_10_recall {:.4} ms_per_update {:.2}",

@@ -2,14 +2,22 @@
 //! are: the measure of issue 18's loop scenario (`robot-agent map eval`, `obstacle_positions`).
 //!
 //! For each true pole or trunk, the mapped obstacle cells (class before inflation) whose centres
-//! lie within `SEARCH_M` of its surface and nearer to it than to any other pole or trunk are its
-//! cells; the error is the distance from their centroid to the true centre. A thin post seen
+//! lie within `SEARCH_M` of its surface and nearer to it than to any other solid of the world
+//! (another pole or trunk, a wall, a box, a car) are its cells; the error is the distance from their centroid to the true centre. A thin post seen
 //! from one side has its cells on that side, so even a perfect map has an error of up to about
 //! the radius plus half a cell: the truth-pose run gives that floor. An object with no cell is
 //! counted as not found (not seen, or drifted further than the search reach).
+//!
+//! Most of those cells are not the object's: the step rule marks both sides of a step, so a
+//! trunk of three cells comes with a ring of ground cells around it, and the ring is only as
+//! complete as the ground around the trunk was seen (a side seen by few sweeps stays unknown
+//! and the centroid moves away from it). The body score ([`ObstaclePositions::body`]) takes
+//! only the raised cells: obstacle cells whose mean height stands more than the step rule's
+//! `h_max` above their lowest observed 8-neighbour, which is where the object's returns are.
 
 use mapping::{Class, Mapper};
 use serde::Serialize;
+use sim::world::{Obb, Shape, Solid, SolidKind};
 
 /// Cells this far outside an object's surface still count as its cells, metres: beyond the
 /// few decimetres of a good map's blur, short of the gaps between neighbouring objects.
@@ -32,29 +40,99 @@ pub struct ObstaclePositions {
     pub mean_surface_distance_m: f64,
     /// Per found object: x, y (truth, metres), centroid error (metres), cells.
     pub per_object: Vec<(f64, f64, f64, usize)>,
+    /// The same scores over the raised cells only (the objects' own returns, without the
+    /// ground ring the step rule marks around them).
+    pub body: BodyPositions,
 }
 
-/// Scores the mapper's obstacle cells against the scenario's poles and trunks.
-pub fn score(mapper: &Mapper, scenario: &sim::Scenario) -> ObstaclePositions {
-    let objects: Vec<(f64, f64, f64)> = scenario
-        .pole
+/// Centroid errors over each object's raised obstacle cells (see the module docs).
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct BodyPositions {
+    /// Objects with a raised cell within the search reach.
+    pub found: usize,
+    /// Mean centroid error over the found ones, metres.
+    pub mean_error_m: f64,
+    /// Median centroid error, metres.
+    pub median_error_m: f64,
+    /// Largest centroid error, metres.
+    pub max_error_m: f64,
+    /// Per found object: x, y (truth, metres), centroid error (metres), cells.
+    pub per_object: Vec<(f64, f64, f64, usize)>,
+}
+
+/// Mean, median and largest of some errors (zeros when there are none).
+fn summary(errors: &mut [f64]) -> (f64, f64, f64) {
+    if errors.is_empty() {
+        return (0.0, 0.0, 0.0);
+    }
+    let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+    errors.sort_by(f64::total_cmp);
+    (mean, errors[errors.len() / 2], errors[errors.len() - 1])
+}
+
+/// The cell stands more than `h_max_m` above its lowest observed 8-neighbour.
+fn raised(mapper: &Mapper, cx: i64, cy: i64, h_max_m: f64) -> bool {
+    let Some(h) = mapper.height_m(cx, cy) else {
+        return false;
+    };
+    (-1..=1)
+        .flat_map(|dy| (-1..=1).map(move |dx| (dx, dy)))
+        .filter(|&d| d != (0, 0))
+        .filter_map(|(dx, dy)| mapper.height_m(cx + dx, cy + dy))
+        .any(|n| h - n > h_max_m)
+}
+
+/// Horizontal distance from (x, y) to a solid's footprint, metres (0 inside).
+fn footprint_distance(s: &Solid, x: f64, y: f64) -> f64 {
+    match s.shape {
+        Shape::Cylinder { cx, cy, r } | Shape::Ellipsoid { cx, cy, r } => {
+            ((x - cx).hypot(y - cy) - r).max(0.0)
+        }
+        Shape::Box {
+            cx,
+            cy,
+            hx,
+            hy,
+            yaw,
+        } => Obb {
+            cx,
+            cy,
+            hx,
+            hy,
+            yaw,
+        }
+        .distance_to(x, y),
+    }
+}
+
+/// Scores the mapper's obstacle cells against the world's poles and trunks.
+pub fn score(mapper: &Mapper, world: &sim::World) -> ObstaclePositions {
+    // Canopies hang above the robot: their cells are the trunks' or the ground's.
+    let solids: Vec<&Solid> = world
+        .solids()
         .iter()
-        .map(|p| (p.x_m, p.y_m, p.radius_m))
-        .chain(
-            scenario
-                .tree
-                .iter()
-                .map(|t| (t.x_m, t.y_m, t.trunk_radius_m)),
-        )
+        .filter(|s| s.kind != SolidKind::Canopy)
+        .collect();
+    let objects: Vec<(usize, f64, f64, f64)> = solids
+        .iter()
+        .enumerate()
+        .filter_map(|(k, s)| match (s.kind, s.shape) {
+            (SolidKind::Pole | SolidKind::Trunk, Shape::Cylinder { cx, cy, r }) => {
+                Some((k, cx, cy, r))
+            }
+            _ => None,
+        })
         .collect();
     let mut out = ObstaclePositions {
         objects: objects.len(),
         ..Default::default()
     };
     let lattice = mapper.lattice();
-    // Per object: sum of x, y, surface distance, count.
+    let h_max_m = mapper.config().h_max_m();
+    // Per object: sum of x, y, surface distance, count; and x, y, count of the raised cells.
     let mut acc = vec![(0.0, 0.0, 0.0, 0usize); objects.len()];
-    for (i, &(ox, oy, r)) in objects.iter().enumerate() {
+    let mut body = vec![(0.0, 0.0, 0usize); objects.len()];
+    for (i, &(k, ox, oy, r)) in objects.iter().enumerate() {
         let reach = r + SEARCH_M;
         let (c0x, c0y) = lattice.cell_of(ox - reach, oy - reach);
         let (c1x, c1y) = lattice.cell_of(ox + reach, oy + reach);
@@ -64,22 +142,26 @@ pub fn score(mapper: &Mapper, scenario: &sim::Scenario) -> ObstaclePositions {
                     continue;
                 }
                 let (x, y) = lattice.cell_center_m(cx, cy);
-                let surface =
-                    |(px, py, pr): (f64, f64, f64)| ((x - px).hypot(y - py) - pr).max(0.0);
-                let d = surface((ox, oy, r));
+                let d = ((x - ox).hypot(y - oy) - r).max(0.0);
                 if d > SEARCH_M {
                     continue;
                 }
-                let nearest = objects
+                let nearest = solids
                     .iter()
                     .enumerate()
-                    .all(|(j, &o)| j == i || surface(o) >= d);
+                    .all(|(j, o)| j == k || footprint_distance(o, x, y) >= d);
                 if nearest {
                     let a = &mut acc[i];
                     a.0 += x;
                     a.1 += y;
                     a.2 += d;
                     a.3 += 1;
+                    if raised(mapper, cx, cy, h_max_m) {
+                        let b = &mut body[i];
+                        b.0 += x;
+                        b.1 += y;
+                        b.2 += 1;
+                    }
                 }
             }
         }
@@ -87,7 +169,7 @@ pub fn score(mapper: &Mapper, scenario: &sim::Scenario) -> ObstaclePositions {
     let mut errors = Vec::new();
     let mut surface_sum = 0.0;
     let mut cells = 0usize;
-    for (&(ox, oy, _), &(sx, sy, sd, n)) in objects.iter().zip(&acc) {
+    for (&(_, ox, oy, _), &(sx, sy, sd, n)) in objects.iter().zip(&acc) {
         if n == 0 {
             continue;
         }
@@ -99,11 +181,110 @@ pub fn score(mapper: &Mapper, scenario: &sim::Scenario) -> ObstaclePositions {
     }
     out.found = errors.len();
     if !errors.is_empty() {
-        out.mean_error_m = errors.iter().sum::<f64>() / errors.len() as f64;
-        out.max_error_m = errors.iter().copied().fold(0.0, f64::max);
-        errors.sort_by(f64::total_cmp);
-        out.median_error_m = errors[errors.len() / 2];
+        (out.mean_error_m, out.median_error_m, out.max_error_m) = summary(&mut errors);
         out.mean_surface_distance_m = surface_sum / cells as f64;
     }
+    let mut errors = Vec::new();
+    for (&(_, ox, oy, _), &(sx, sy, n)) in objects.iter().zip(&body) {
+        if n > 0 {
+            let e = (sx / n as f64 - ox).hypot(sy / n as f64 - oy);
+            errors.push(e);
+            out.body.per_object.push((ox, oy, e, n));
+        }
+    }
+    out.body.found = errors.len();
+    (
+        out.body.mean_error_m,
+        out.body.median_error_m,
+        out.body.max_error_m,
+    ) = summary(&mut errors);
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mapping::synth::{cast_scan, LidarSpec, Rng};
+    use mapping::{Config, RobotPose};
+
+    /// Flat ground with a trunk of radius 0.2 m at (6, 0) and, with `with_box`, a 1 m box
+    /// 0.4 m east of the trunk's surface.
+    fn world(x: f64, y: f64, with_box: bool) -> f64 {
+        if (x - 6.0).hypot(y) < 0.2 {
+            2.0
+        } else if with_box && (6.6..=8.0).contains(&x) && y.abs() <= 1.0 {
+            1.0
+        } else {
+            0.0
+        }
+    }
+
+    /// The trunk mapped from sweeps taken along y = 4 m from x = 2 to 10 m.
+    fn mapped(with_box: bool) -> Mapper {
+        let spec = LidarSpec {
+            az_step_deg: 0.2,
+            max_range_m: 20.0,
+            ..LidarSpec::vlp16()
+        };
+        let mut m = Mapper::new(Config::default()).unwrap();
+        let mut rng = Rng::new(5);
+        let height = |x: f64, y: f64| world(x, y, with_box);
+        for i in 0..17 {
+            let x = 2.0 + 0.5 * f64::from(i);
+            let pts = cast_scan(&height, [x, 4.0, 0.7], &spec, &mut rng);
+            let robot = RobotPose {
+                x_m: x,
+                y_m: 4.0,
+                z_m: 0.0,
+                yaw_rad: 0.0,
+            };
+            m.update_sweep(pts, [x, 4.0, 0.7], &robot, 1.0 + 0.1 * f64::from(i))
+                .unwrap();
+        }
+        m
+    }
+
+    /// The world of the trunk at `x_m` (and the box when `with_box`) as the scorer sees it.
+    fn truth(x_m: f64, with_box: bool) -> sim::World {
+        let mut text = format!(
+            "name = \"trunk\"\n[datum]\nlat_deg = 50.0\nlon_deg = 14.0\nh_m = 200.0\n\
+             [extent]\nx_min_m = -20.0\nx_max_m = 20.0\ny_min_m = -20.0\ny_max_m = 20.0\n\
+             [[pole]]\nx_m = {x_m}\ny_m = 0.0\nradius_m = 0.2\nheight_m = 2.0\n"
+        );
+        if with_box {
+            text.push_str(
+                "[[box]]\nrect = { center_m = [7.3, 0.0], size_m = [1.4, 2.0], yaw_deg = 0 }\nheight_m = 1.0\n",
+            );
+        }
+        sim::World::new(&sim::Scenario::from_toml_str(&text, "test").unwrap())
+    }
+
+    #[test]
+    fn the_body_score_finds_a_trunk_where_its_ring_is_one_sided() {
+        let map = mapped(false);
+        let o = score(&map, &truth(6.0, false));
+        assert_eq!((o.objects, o.found, o.body.found), (1, 1, 1), "{o:?}");
+        // Seen from one side, the body's cells are the trunk's near half: within the radius
+        // and half a cell of the centre.
+        assert!(o.body.max_error_m <= 0.2 + 0.1 + 1e-9, "{o:?}");
+        assert!(
+            o.body.per_object[0].3 < o.per_object[0].3,
+            "fewer cells: {o:?}"
+        );
+        // Moved by 0.5 m, the map's trunk scores the move, whichever cells are counted.
+        let moved = score(&map, &truth(6.5, false));
+        assert!(moved.body.max_error_m > 0.3, "{moved:?}");
+        assert!(moved.max_error_m > 0.3, "{moved:?}");
+    }
+
+    #[test]
+    fn cells_nearer_another_solid_are_not_the_trunks() {
+        let map = mapped(true);
+        // A scorer blind to the box takes the box's west face for the trunk's.
+        let blind = score(&map, &truth(6.0, false));
+        let o = score(&map, &truth(6.0, true));
+        assert!(o.per_object[0].3 < blind.per_object[0].3, "{o:?} {blind:?}");
+        assert!(o.max_error_m < blind.max_error_m, "{o:?} {blind:?}");
+        assert!(o.body.max_error_m <= 0.2 + 0.1 + 1e-9, "{o:?}");
+    }
 }

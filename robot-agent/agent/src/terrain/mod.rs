@@ -256,19 +256,28 @@ impl TerrainMap {
         if kept.has_after(sh.fed_until) {
             return Ok(Vec::new());
         }
-        let Some(mut sh) = self.shadow.take() else {
+        let (Some(mut sh), Some(kept)) = (self.shadow.take(), self.kept.as_mut()) else {
             return Ok(Vec::new());
         };
         // Every kept sweep is fed: the shifts since the newest one come now, as they came to
         // the live map.
         sh.follow_frames_before(f64::INFINITY, radius_m);
+        let cfg = self.mapper.config();
+        let reach_m = cfg.max_range_m.max(cfg.clear_reach_m) + cfg.cost_distance_m;
+        let stale = kept.stale_tiles(&self.mapper.lattice(), reach_m);
+        kept.swapped();
+        let held = self.mapper.tile_count();
+        let tiles = self
+            .mapper
+            .replace_tiles_with(sh.mapper, t_s, |t| stale.contains(&t));
         tracing::info!(
-            "map rebuild swapped in at {t_s:.2} s: {} kept sweeps fed since {:.2} s",
+            "map rebuild swapped in at {t_s:.2} s: {} kept sweeps fed since {:.2} s, {} of {held} tiles replaced",
             sh.fed,
-            sh.started_s
+            sh.started_s,
+            tiles.len()
         );
         self.rebuilds += 1;
-        Ok(self.mapper.replace_with(sh.mapper, t_s))
+        Ok(tiles)
     }
 
     /// Rebuilds after pose graph corrections (swapped in), and the sweeps kept for them.

@@ -9,13 +9,16 @@
 //! for the free space it marks) with its SLAM pose; after a correction that moves any of them by more than
 //! `map_rebuild_min_move_m`, a shadow mapper is fed the kept sweeps in time order at their
 //! corrected poses (`map<-slam` from the graph at each sweep's time), a few per sweep
-//! ([`Shadow`]), and replaces the map once it has caught up. Every tile is then offered for
-//! publication again; the publisher sends those whose cells differ, with newer versions, so
-//! stations replace them. The store is capped at `map_rebuild_max_mb`: over it, every second
+//! ([`Shadow`]), and replaces the map's stale tiles (those a moved sweep reaches,
+//! [`SweepStore::stale_tiles`]) once it has caught up; the other tiles keep the live map's
+//! cells, made from every sweep. The replaced tiles are offered for publication again; the
+//! publisher sends those whose cells differ, with newer versions, so stations replace them. The store is capped at `map_rebuild_max_mb`: over it, every second
 //! sweep of its oldest half is dropped (the oldest stretch ends up thinnest).
 
+use common::grid::{Lattice, TileIndex};
 use nalgebra::{Isometry3, Point3};
 use sensing::Point;
+use std::collections::HashSet;
 
 /// Largest quantised coordinate: [`NEAR_RANGE`] times the mapper's range maps to this.
 const Q_MAX: f32 = 32000.0;
@@ -42,6 +45,9 @@ struct KeptSweep {
     slam_from_base: Isometry3<f64>,
     /// `map<-base_link` it was last mapped at (by the live map or a rebuild).
     mapped_at: Isometry3<f64>,
+    /// `map<-base_link` the live map has it at: where it was mapped live, or by the rebuild
+    /// that last replaced the live map's tiles around it.
+    live_at: Isometry3<f64>,
     /// Returns in the lidar frame, in steps of the store's `step_m`.
     points: Vec<[i16; 3]>,
 }
@@ -193,6 +199,7 @@ impl SweepStore {
             t_s,
             slam_from_base: *slam_from_base,
             mapped_at: *map_from_base,
+            live_at: *map_from_base,
             points,
         };
         self.bytes += sweep_bytes(&s);
@@ -273,6 +280,60 @@ impl SweepStore {
             Correction::Restart
         } else {
             Correction::Retarget
+        }
+    }
+
+    /// The tiles a rebuild that fed every kept sweep must replace in the live map: those
+    /// within `reach_m` (what a sweep's returns, free space and costs touch) of a kept sweep
+    /// whose rebuilt pose moves some point of the tile by more than `min_move_m` from where
+    /// the live map has it. The move is bounded at the tile's corners at the sweep's height
+    /// (it is affine in the point, its length convex), so a small rotation marks the far
+    /// tiles only. A tile no moved sweep reaches keeps the live map's cells, which hold every
+    /// sweep there rather than one kept every `map_rebuild_spacing_m`. Then the live map has
+    /// every kept sweep where the rebuild put it ([`SweepStore::swapped`]).
+    pub fn stale_tiles(&self, lattice: &Lattice, reach_m: f64) -> HashSet<TileIndex> {
+        let mut stale = HashSet::new();
+        let edge = lattice.cell_size_f64() * f64::from(lattice.tile_cells);
+        for s in &self.sweeps {
+            let delta = s.mapped_at * s.live_at.inverse();
+            let o = s.live_at.translation.vector;
+            let moved = |x: f64, y: f64| {
+                let p = Point3::new(x, y, o.z);
+                (delta * p - p).norm() > self.min_move_m
+            };
+            let tile_at = |x: f64, y: f64| {
+                let (cx, cy) = lattice.cell_of(x, y);
+                lattice.tile_of_cell(cx, cy).0
+            };
+            let t0 = tile_at(o.x - reach_m, o.y - reach_m);
+            let t1 = tile_at(o.x + reach_m, o.y + reach_m);
+            for ty in t0.ty..=t1.ty {
+                for tx in t0.tx..=t1.tx {
+                    let t = TileIndex { tx, ty };
+                    if stale.contains(&t) {
+                        continue;
+                    }
+                    let (x0, y0) = lattice.tile_origin_m(t);
+                    let (x1, y1) = (x0 + edge, y0 + edge);
+                    let near = (o.x.clamp(x0, x1) - o.x).hypot(o.y.clamp(y0, y1) - o.y);
+                    if near <= reach_m
+                        && [(x0, y0), (x1, y0), (x0, y1), (x1, y1)]
+                            .into_iter()
+                            .any(|(x, y)| moved(x, y))
+                    {
+                        stale.insert(t);
+                    }
+                }
+            }
+        }
+        stale
+    }
+
+    /// A rebuild that fed every kept sweep replaced the live map's stale tiles: the live map
+    /// has them where the rebuild put them.
+    pub fn swapped(&mut self) {
+        for s in &mut self.sweeps {
+            s.live_at = s.mapped_at;
         }
     }
 
@@ -445,6 +506,69 @@ mod tests {
     }
 
     #[test]
+    fn only_tiles_a_moved_sweep_reaches_are_stale() {
+        let lattice = Lattice {
+            cell_size_m: 0.2,
+            tile_cells: 64,
+        };
+        let edge = 12.8;
+        let mut st = SweepStore::new(0.5, 0.05, 30.0, 100.0);
+        for i in 0..3 {
+            // Sweeps at x = 0, 100, 200 m.
+            let p = se3::from_xyz_rpy([100.0 * f64::from(i), 0.0, 0.0], [0.0; 3]);
+            st.offer(f64::from(i), &p, &p, &[pt(1.0)]);
+        }
+        assert!(
+            st.stale_tiles(&lattice, 30.0).is_empty(),
+            "nothing moved yet"
+        );
+        // The middle sweep moves 0.3 m sideways, the others stay.
+        let mid = se3::from_xyz_rpy([0.0, 0.3, 0.0], [0.0; 3]);
+        let c = st.correct(
+            |t| Some(if t == 1.0 { mid } else { Isometry3::identity() }),
+            None,
+        );
+        assert_eq!(c, Correction::Restart);
+        let stale = st.stale_tiles(&lattice, 30.0);
+        let tile = |x: f64, y: f64| {
+            let (cx, cy) = lattice.cell_of(x, y);
+            lattice.tile_of_cell(cx, cy).0
+        };
+        assert!(stale.contains(&tile(100.0, 0.0)));
+        assert!(stale.contains(&tile(100.0, 29.0)));
+        assert!(!stale.contains(&tile(100.0, 31.0 + edge)), "beyond reach");
+        assert!(!stale.contains(&tile(0.0, 0.0)) && !stale.contains(&tile(200.0, 0.0)));
+        // Every stale tile is within reach of the moved sweep, and there are not many.
+        assert!(stale.len() <= 36, "{}", stale.len());
+        st.swapped();
+        assert!(
+            st.stale_tiles(&lattice, 30.0).is_empty(),
+            "the live map has it now"
+        );
+        // A turn of 0.05 deg about the first sweep moves points 0.05 m at 57 m, the middle
+        // sweep moves on (a rebuild): within 30 m of the first nothing is stale, but tiles 60 m
+        // out would be.
+        let turn = se3::from_xyz_rpy([0.0; 3], [0.0, 0.0, 0.05_f64.to_radians()]);
+        let mid2 = se3::from_xyz_rpy([0.0, 0.6, 0.0], [0.0; 3]);
+        let c = st.correct(
+            |t: f64| {
+                Some(match t {
+                    0.0 => turn,
+                    1.0 => mid2,
+                    _ => Isometry3::identity(),
+                })
+            },
+            None,
+        );
+        assert_eq!(c, Correction::Restart);
+        let stale = st.stale_tiles(&lattice, 30.0);
+        assert!(stale.contains(&tile(100.0, 0.0)) && !stale.contains(&tile(0.0, 0.0)));
+        let far = st.stale_tiles(&lattice, 70.0);
+        assert!(far.contains(&tile(-64.0, 0.0)), "{far:?}");
+        assert!(!far.contains(&tile(-20.0, 0.0)), "{far:?}");
+    }
+
+    #[test]
     fn quantised_returns_stay_within_half_a_step_and_the_cap_thins_the_oldest_half() {
         let step = NEAR_RANGE * 30.0 / Q_MAX;
         let mut st = SweepStore::new(0.5, 0.05, 30.0, 1.0);
@@ -455,7 +579,7 @@ mod tests {
         for (k, &x) in q.iter().enumerate() {
             assert!((back[0].points[k][0] - x).abs() <= 0.5 * step + 1e-6);
         }
-        assert!(st.bytes() < 200, "6 bytes a return and the pose");
+        assert!(st.bytes() < 250, "6 bytes a return and the three poses");
         // 2000 returns a sweep (12 kB): 1 MB holds about 80.
         let cloud: Vec<Point> = (0..2000).map(|i| pt(0.01 * i as f32)).collect();
         let mut st = SweepStore::new(0.5, 0.05, 30.0, 1.0);

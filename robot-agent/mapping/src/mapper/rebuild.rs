@@ -17,20 +17,44 @@ impl Mapper {
     /// station keeps, per cell, the evidence with the newest stamp (docs/algorithms.md §8.3), and
     /// the sweeps behind a rebuilt cell are older than what it was sent of that cell before, yet
     /// where they put things is newer knowledge.
-    pub fn replace_with(&mut self, mut rebuilt: Mapper, t_s: f64) -> Vec<TileIndex> {
+    pub fn replace_with(&mut self, rebuilt: Mapper, t_s: f64) -> Vec<TileIndex> {
+        self.replace_tiles_with(rebuilt, t_s, |_| true)
+    }
+
+    /// [`Mapper::replace_with`] for the tiles `stale` says a correction moved only: the others
+    /// keep this map's cells (the same sweeps at the same poses, all of them where the rebuild
+    /// has only the kept ones, so more evidence) and stamps, and are not published again. A
+    /// stale tile the rebuilt map does not hold stays as unknown cells, as above.
+    pub fn replace_tiles_with(
+        &mut self,
+        mut rebuilt: Mapper,
+        t_s: f64,
+        stale: impl Fn(TileIndex) -> bool,
+    ) -> Vec<TileIndex> {
         let stamp = super::evidence::stamp_of(t_s);
-        for s in &mut rebuilt.slots {
+        let n = self.lattice.tile_cells as usize;
+        let mut slots: Vec<TileSlot> = Vec::with_capacity(rebuilt.slots.len() + self.slots.len());
+        for mut s in rebuilt.slots.drain(..) {
+            if !stale(s.index) {
+                continue;
+            }
             for d in &mut s.data {
                 d.stamp_s = d.stamp_s.max(stamp);
             }
             for c in s.live.iter_mut().filter(|c| c.state != CellState::Unknown) {
                 c.stamp_s = c.stamp_s.max(stamp);
             }
+            slots.push(s);
         }
-        let n = self.lattice.tile_cells as usize;
-        for s in &self.slots {
-            if rebuilt.slot(s.index).is_none() {
-                rebuilt.slots.push(TileSlot {
+        let mut tiles: Vec<TileIndex> = slots.iter().map(|s| s.index).collect();
+        for s in self.slots.drain(..) {
+            if !stale(s.index) {
+                slots.push(s);
+            } else if rebuilt.slot_of.contains_key(&s.index) {
+                // Taken from the rebuilt map above.
+            } else {
+                tiles.push(s.index);
+                slots.push(TileSlot {
                     index: s.index,
                     data: vec![Default::default(); n * n],
                     ground: vec![f32::INFINITY; n * n],
@@ -38,9 +62,24 @@ impl Mapper {
                     held: vec![0; (n * n).div_ceil(64)],
                     changed: false,
                 });
-                rebuilt.slot_of.insert(s.index, rebuilt.slots.len() - 1);
             }
         }
+        for s in &mut slots {
+            s.changed = false;
+        }
+        rebuilt.slot_of = slots
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.index, i))
+            .collect();
+        rebuilt.slots = slots;
+        // Cells of the kept tiles that wait to be classified wait on.
+        let lattice = self.lattice;
+        rebuilt.pending.extend(
+            self.pending
+                .iter()
+                .filter(|&&(cx, cy)| !stale(lattice.tile_of_cell(cx, cy).0)),
+        );
         rebuilt.last_t_s = match (self.last_t_s, rebuilt.last_t_s) {
             (Some(a), Some(b)) => Some(a.max(b)),
             (a, b) => a.or(b),
@@ -50,11 +89,6 @@ impl Mapper {
         rebuilt
             .last_slot
             .set((TileIndex { tx: 0, ty: 0 }, usize::MAX));
-        // Every tile goes out again: the publisher sends only those whose cells differ.
-        let mut tiles: Vec<TileIndex> = rebuilt.slots.iter().map(|s| s.index).collect();
-        for s in &mut rebuilt.slots {
-            s.changed = false;
-        }
         tiles.sort_unstable();
         *self = rebuilt;
         tiles
@@ -111,6 +145,36 @@ mod tests {
             .flat_map(|r| (c0..=c1).map(move |c| (c, r)))
             .filter(|&(c, r)| m.class(c, r) == Class::Obstacle)
             .count()
+    }
+
+    #[test]
+    fn a_partial_replace_keeps_the_live_tiles_it_is_not_given() {
+        let mut drifted = mapped(1.0);
+        let l = drifted.lattice();
+        let (bx, by) = l.cell_of(6.0, 1.0);
+        let box_tile = l.tile_of_cell(bx, by).0;
+        let before: Vec<_> = drifted.tiles();
+        // Nothing stale: the live map stays as it was, nothing goes out again.
+        let tiles = drifted.replace_tiles_with(mapped(0.0), 17.0, |_| false);
+        assert!(tiles.is_empty());
+        assert_eq!(drifted.tiles(), before, "cells and stamps unchanged");
+        // Only the box's tile stale: it is the rebuilt one, stamped anew; the others stay.
+        let tiles = drifted.replace_tiles_with(mapped(0.0), 17.0, |t| t == box_tile);
+        assert_eq!(tiles, vec![box_tile]);
+        let north = ((5.3, 6.7), (0.9, 1.7));
+        assert_eq!(obstacles_in(&drifted, north.0, north.1), 0);
+        assert!(obstacles_in(&drifted, (5.3, 6.7), (-0.7, 0.7)) > 0);
+        let (sx, sy) = l.cell_of(5.6, 0.2);
+        assert_eq!(l.tile_of_cell(sx, sy).0, box_tile);
+        assert_eq!(drifted.cell(sx, sy).stamp_s, 17, "a rebuilt cell");
+        for t in before.iter().filter(|t| t.index != box_tile) {
+            assert_eq!(
+                drifted.tile_cells(t.index),
+                Some(t.cells.as_slice()),
+                "tile {:?} kept",
+                t.index
+            );
+        }
     }
 
     #[test]

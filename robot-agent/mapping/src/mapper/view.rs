@@ -50,6 +50,11 @@ impl Mapper {
         v
     }
 
+    /// Tiles held.
+    pub fn tile_count(&self) -> usize {
+        self.slots.len()
+    }
+
     /// The current output cells of one tile (row-major, row 0 southmost), if the tile is held.
     pub fn tile_cells(&self, index: TileIndex) -> Option<&[Cell]> {
         self.slot(index).map(|s| self.slots[s].live.as_slice())

@@ -172,7 +172,7 @@ pub fn run(
         &walker_trace,
         &mut rep,
     );
-    rep.obstacle_positions = super::obstacle_positions::score(mapper, scenario);
+    rep.obstacle_positions = super::obstacle_positions::score(mapper, rig.sim.world());
     if let Some(g) = rig.agent.localiser().graph_stats() {
         let (map_rebuilds, kept_sweeps) = rig.agent.terrain().rebuild_counts();
         let (kept_bytes, kept_dropped) = rig.agent.terrain().rebuild_memory();
@@ -217,7 +217,7 @@ pub fn run(
                 accuracy: r.accuracy,
                 false_obstacle_rate: r.false_obstacle_rate,
                 obstacle_recall: r.obstacle_recall,
-                obstacle_positions: super::obstacle_positions::score(&m, scenario),
+                obstacle_positions: super::obstacle_positions::score(&m, rig.sim.world()),
             });
         }
     }
