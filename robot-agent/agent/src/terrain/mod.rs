@@ -168,7 +168,14 @@ impl TerrainMap {
         points: &[sensing::Point],
     ) {
         if let Some(k) = self.kept.as_mut() {
-            k.offer(t_s, slam_from_base, &pose.iso, points);
+            // While a rebuild runs, every sweep (see `SweepStore::respace`).
+            k.offer(
+                t_s,
+                slam_from_base,
+                &pose.iso,
+                points,
+                self.shadow.is_some(),
+            );
         }
     }
 
@@ -266,12 +273,13 @@ impl TerrainMap {
         let reach_m = cfg.max_range_m.max(cfg.clear_reach_m) + cfg.cost_distance_m;
         let stale = kept.stale_tiles(&self.mapper.lattice(), reach_m);
         kept.swapped();
+        let thinned = kept.respace();
         let held = self.mapper.tile_count();
         let tiles = self
             .mapper
             .replace_tiles_with(sh.mapper, t_s, |t| stale.contains(&t));
         tracing::info!(
-            "map rebuild swapped in at {t_s:.2} s: {} kept sweeps fed since {:.2} s, {} of {held} tiles replaced",
+            "map rebuild swapped in at {t_s:.2} s: {} kept sweeps fed since {:.2} s, {} of {held} tiles replaced, {thinned} sweeps kept meanwhile thinned to the spacing",
             sh.fed,
             sh.started_s,
             tiles.len()

@@ -3,7 +3,8 @@
 //!
 //! The cells hold evidence summaries (height statistics per epoch), not the points behind them,
 //! and one cell mixes sweeps of many times, so a cell cannot be moved by "its" correction. What
-//! is kept instead is a sweep every `map_rebuild_spacing_m` of travel (lidar frame, every finite
+//! is kept instead is a sweep every `map_rebuild_spacing_m` of travel (every sweep while a
+//! rebuild runs, [`SweepStore::respace`]; lidar frame, every finite
 //! return in order: within 1.1 times the mapper's range each coordinate quantised to an `i16`
 //! step of 1.1 range/32000, about a millimetre at 30 m, beyond it only the beam's direction,
 //! for the free space it marks) with its SLAM pose; after a correction that moves any of them by more than
@@ -149,17 +150,20 @@ impl SweepStore {
     }
 
     /// A sweep just mapped at `map_from_base` (its SLAM pose `slam_from_base`): kept when the
-    /// robot moved `spacing_m` since the last kept one. Returns whether it was kept.
+    /// robot moved `spacing_m` since the last kept one, or whatever the distance when `every`
+    /// (a rebuild runs: see [`SweepStore::respace`]). Returns whether it was kept.
     pub fn offer(
         &mut self,
         t_s: f64,
         slam_from_base: &Isometry3<f64>,
         map_from_base: &Isometry3<f64>,
         points: &[Point],
+        every: bool,
     ) -> bool {
         let due = self.sweeps.last().is_none_or(|s| {
-            (s.slam_from_base.translation.vector - slam_from_base.translation.vector).norm()
-                >= self.spacing_m
+            (every
+                || (s.slam_from_base.translation.vector - slam_from_base.translation.vector).norm()
+                    >= self.spacing_m)
                 && t_s > s.t_s
         });
         if !due || !t_s.is_finite() {
@@ -204,8 +208,39 @@ impl SweepStore {
         };
         self.bytes += sweep_bytes(&s);
         self.sweeps.push(s);
-        self.enforce_cap();
+        // The sweeps of a catch-up are held on top of the cap until `respace`: thinning the
+        // oldest half for them would cost the store its history for good.
+        if !every {
+            self.enforce_cap();
+        }
         true
+    }
+
+    /// Back to one sweep every `spacing_m`: a sweep closer than that to the last one kept
+    /// before it goes. While a rebuild runs every live sweep is kept, so that the rebuilt map
+    /// takes all the live map took meanwhile (the live map mapped those sweeps at corrected
+    /// poses, and a cell seen well only then, from close by, would otherwise come back with the
+    /// one kept sweep in six); once it is swapped in they are thinned again, and the cap
+    /// (which they were held on top of) applies again. Returns the sweeps dropped by the
+    /// spacing.
+    pub fn respace(&mut self) -> usize {
+        let before = self.sweeps.len();
+        let mut last: Option<nalgebra::Vector3<f64>> = None;
+        let spacing = self.spacing_m;
+        let bytes = &mut self.bytes;
+        self.sweeps.retain(|s| {
+            let p = s.slam_from_base.translation.vector;
+            let keep = last.is_none_or(|l| (p - l).norm() >= spacing);
+            if keep {
+                last = Some(p);
+            } else {
+                *bytes -= sweep_bytes(s);
+            }
+            keep
+        });
+        let thinned = before - self.sweeps.len();
+        self.enforce_cap();
+        thinned
     }
 
     /// Over the cap: every second sweep of the oldest half goes, until under it (a single sweep
@@ -472,7 +507,13 @@ mod tests {
         let mut st = SweepStore::new(0.5, 0.05, 30.0, 100.0);
         for i in 0..10 {
             let p = se3::from_xyz_rpy([0.2 * f64::from(i), 0.0, 0.0], [0.0; 3]);
-            st.offer(f64::from(i), &p, &p, &[pt(1.0), pt(100.0), pt(f32::NAN)]);
+            st.offer(
+                f64::from(i),
+                &p,
+                &p,
+                &[pt(1.0), pt(100.0), pt(f32::NAN)],
+                false,
+            );
         }
         // 0, 0.6, 1.2, 1.8 m: every third sweep.
         assert_eq!(st.len(), 4);
@@ -503,6 +544,30 @@ mod tests {
         // ...and starts again when one it fed moved.
         assert_eq!(st.correct(|_| Some(late), Some(6.0)), Correction::Restart);
         assert_eq!(st.after(Some(0.0), 2).len(), 2, "at most n, after the time");
+        // While a rebuild runs every sweep is kept; respaced, one every 0.5 m again.
+        let bytes = st.bytes();
+        for i in 10..20 {
+            let p = se3::from_xyz_rpy([0.2 * f64::from(i), 0.0, 0.0], [0.0; 3]);
+            assert!(st.offer(f64::from(i), &p, &p, &[pt(1.0)], true));
+        }
+        assert_eq!(st.len(), 14);
+        // Kept at x = 0, 0.6, 1.2, 1.8, then 2.0 ... 3.8: 2.4, 3.0, 3.6 stay of the ten.
+        assert_eq!(st.respace(), 7);
+        assert_eq!(st.len(), 7);
+        let xs: Vec<f64> = st
+            .after(None, usize::MAX)
+            .iter()
+            .map(|r| r.map_from_base.translation.x)
+            .collect();
+        assert!(
+            (xs[4] - 2.4).abs() < 1e-9 && (xs[6] - 3.6).abs() < 1e-9,
+            "{xs:?}"
+        );
+        assert!(
+            st.bytes() > bytes && st.bytes() < bytes + 3 * 250,
+            "{}",
+            st.bytes()
+        );
     }
 
     #[test]
@@ -516,7 +581,7 @@ mod tests {
         for i in 0..3 {
             // Sweeps at x = 0, 100, 200 m.
             let p = se3::from_xyz_rpy([100.0 * f64::from(i), 0.0, 0.0], [0.0; 3]);
-            st.offer(f64::from(i), &p, &p, &[pt(1.0)]);
+            st.offer(f64::from(i), &p, &p, &[pt(1.0)], false);
         }
         assert!(
             st.stale_tiles(&lattice, 30.0).is_empty(),
@@ -574,7 +639,7 @@ mod tests {
         let mut st = SweepStore::new(0.5, 0.05, 30.0, 1.0);
         let p0 = Isometry3::identity();
         let q = [0.123_456_f32, -29.99, 7.777];
-        st.offer(0.0, &p0, &p0, &[pt(q[0]), pt(q[1]), pt(q[2])]);
+        st.offer(0.0, &p0, &p0, &[pt(q[0]), pt(q[1]), pt(q[2])], false);
         let back = st.after(None, 1);
         for (k, &x) in q.iter().enumerate() {
             assert!((back[0].points[k][0] - x).abs() <= 0.5 * step + 1e-6);
@@ -585,7 +650,7 @@ mod tests {
         let mut st = SweepStore::new(0.5, 0.05, 30.0, 1.0);
         for i in 0..200 {
             let p = se3::from_xyz_rpy([f64::from(i), 0.0, 0.0], [0.0; 3]);
-            assert!(st.offer(f64::from(i), &p, &p, &cloud));
+            assert!(st.offer(f64::from(i), &p, &p, &cloud, false));
             assert!(st.bytes() <= 1_000_000);
         }
         assert!(st.len() > 40 && st.len() < 100, "{}", st.len());
@@ -595,5 +660,15 @@ mod tests {
         // Spacing grows towards the oldest end.
         let gap = |w: &[f64]| w[1] - w[0];
         assert!(gap(&kept[..2]) >= gap(&kept[kept.len() - 2..]));
+        // A catch-up's sweeps are held on top of the cap, which applies again once respaced.
+        let (len, dropped) = (st.len(), st.dropped());
+        for i in 200..230 {
+            let p = se3::from_xyz_rpy([f64::from(i), 0.0, 0.0], [0.0; 3]);
+            assert!(st.offer(f64::from(i), &p, &p, &cloud, true));
+        }
+        assert_eq!((st.len(), st.dropped()), (len + 30, dropped));
+        assert!(st.bytes() > 1_000_000);
+        assert_eq!(st.respace(), 0, "1 m apart: none too close");
+        assert!(st.bytes() <= 1_000_000 && st.dropped() > dropped);
     }
 }
