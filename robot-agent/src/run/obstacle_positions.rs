@@ -17,7 +17,7 @@
 
 use mapping::{Class, Mapper};
 use serde::Serialize;
-use sim::world::{Obb, Shape, Solid, SolidKind};
+use sim::world::{Shape, Solid, SolidKind};
 
 /// Cells this far outside an object's surface still count as its cells, metres: beyond the
 /// few decimetres of a good map's blur, short of the gaps between neighbouring objects.
@@ -82,29 +82,6 @@ fn raised(mapper: &Mapper, cx: i64, cy: i64, h_max_m: f64) -> bool {
         .any(|n| h - n > h_max_m)
 }
 
-/// Horizontal distance from (x, y) to a solid's footprint, metres (0 inside).
-fn footprint_distance(s: &Solid, x: f64, y: f64) -> f64 {
-    match s.shape {
-        Shape::Cylinder { cx, cy, r } | Shape::Ellipsoid { cx, cy, r } => {
-            ((x - cx).hypot(y - cy) - r).max(0.0)
-        }
-        Shape::Box {
-            cx,
-            cy,
-            hx,
-            hy,
-            yaw,
-        } => Obb {
-            cx,
-            cy,
-            hx,
-            hy,
-            yaw,
-        }
-        .distance_to(x, y),
-    }
-}
-
 /// Scores the mapper's obstacle cells against the world's poles and trunks.
 pub fn score(mapper: &Mapper, world: &sim::World) -> ObstaclePositions {
     // Canopies hang above the robot: their cells are the trunks' or the ground's.
@@ -149,7 +126,7 @@ pub fn score(mapper: &Mapper, world: &sim::World) -> ObstaclePositions {
                 let nearest = solids
                     .iter()
                     .enumerate()
-                    .all(|(j, o)| j == k || footprint_distance(o, x, y) >= d);
+                    .all(|(j, o)| j == k || o.footprint_distance(x, y) >= d);
                 if nearest {
                     let a = &mut acc[i];
                     a.0 += x;

@@ -101,27 +101,7 @@ impl Gnss {
             if !matches!(s.kind, SolidKind::Wall | SolidKind::Box) || s.z1_m - s.z0_m < 2.0 {
                 continue;
             }
-            let d = match s.shape {
-                crate::world::Shape::Box {
-                    cx,
-                    cy,
-                    hx,
-                    hy,
-                    yaw,
-                } => crate::world::Obb {
-                    cx,
-                    cy,
-                    hx,
-                    hy,
-                    yaw,
-                }
-                .distance_to(x, y),
-                crate::world::Shape::Cylinder { cx, cy, r }
-                | crate::world::Shape::Ellipsoid { cx, cy, r } => {
-                    ((cx - x).hypot(cy - y) - r).max(0.0)
-                }
-            };
-            best = best.min(d);
+            best = best.min(s.footprint_distance(x, y));
         }
         best
     }

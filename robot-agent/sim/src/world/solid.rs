@@ -81,6 +81,29 @@ impl Solid {
         }
     }
 
+    /// Horizontal distance from (x, y) to the footprint, metres (0 inside).
+    pub fn footprint_distance(&self, x: f64, y: f64) -> f64 {
+        match self.shape {
+            Shape::Cylinder { cx, cy, r } | Shape::Ellipsoid { cx, cy, r } => {
+                ((x - cx).hypot(y - cy) - r).max(0.0)
+            }
+            Shape::Box {
+                cx,
+                cy,
+                hx,
+                hy,
+                yaw,
+            } => Obb {
+                cx,
+                cy,
+                hx,
+                hy,
+                yaw,
+            }
+            .distance_to(x, y),
+        }
+    }
+
     /// Entry distance of the ray `o + t d` (t >= 0), if it hits.
     #[inline]
     pub fn ray(&self, o: &Point3<f64>, d: &Vector3<f64>) -> Option<f64> {
