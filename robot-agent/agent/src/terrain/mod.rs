@@ -5,6 +5,7 @@
 //! [`layers`]: the robot's footprint cleared, a lasting safety stop stamped) and, while
 //! repeating, the taught route's corridor grid.
 
+pub mod cell_mask;
 pub mod layers;
 pub mod rebuild;
 #[cfg(test)]
@@ -17,6 +18,11 @@ use common::geom::Pose2;
 use common::grid::{Cell, CellState, Lattice, Tile, TileIndex};
 use planning::{CostRule, GridWindow, PlanGrid, PlannerConfig};
 use sensing::Scan;
+
+/// Largest bounding box of the cells a correction touched that is held as one mask (one byte
+/// a cell, three times while it is grown; 8M cells: a 570 m square at 0.2 m); a larger one
+/// replaces whole tiles.
+const STALE_MASK_MAX_CELLS: usize = 8 << 20;
 
 /// Sizes the terrain map needs from the robot profile and the safety stop, metres.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -271,18 +277,26 @@ impl TerrainMap {
         sh.follow_frames_before(f64::INFINITY, radius_m);
         let cfg = self.mapper.config();
         let reach_m = cfg.max_range_m.max(cfg.clear_reach_m) + cfg.cost_distance_m;
-        let stale = kept.stale_tiles(&self.mapper.lattice(), reach_m);
+        let lattice = self.mapper.lattice();
+        let stale = kept.stale_tiles(&lattice, reach_m);
+        // The step rule reads two cells around a cell, the costs `cost_distance_m`.
+        let grow = 2 + (cfg.cost_distance_m / lattice.cell_size_f64()).ceil() as i64;
+        let cells = kept.stale_cells(&lattice, base_from_lidar, grow, STALE_MASK_MAX_CELLS);
         kept.swapped();
         let thinned = kept.respace();
         let held = self.mapper.tile_count();
-        let tiles = self
-            .mapper
-            .replace_tiles_with(sh.mapper, t_s, |t| stale.contains(&t));
+        let tiles = self.mapper.replace_cells_with(
+            sh.mapper,
+            t_s,
+            |t| stale.contains(&t),
+            |cx, cy| cells.as_ref().is_none_or(|m| m.contains(cx, cy)),
+        );
         tracing::info!(
-            "map rebuild swapped in at {t_s:.2} s: {} kept sweeps fed since {:.2} s, {} of {held} tiles replaced, {thinned} sweeps kept meanwhile thinned to the spacing",
+            "map rebuild swapped in at {t_s:.2} s: {} kept sweeps fed since {:.2} s, {} of {held} tiles replaced, {} of their cells rebuilt, {thinned} sweeps kept meanwhile thinned to the spacing",
             sh.fed,
             sh.started_s,
-            tiles.len()
+            tiles.len(),
+            cells.as_ref().map_or_else(|| "all".to_string(), |m| m.len().to_string()),
         );
         self.rebuilds += 1;
         Ok(tiles)

@@ -27,13 +27,30 @@ impl Mapper {
     /// stale tile the rebuilt map does not hold stays as unknown cells, as above.
     pub fn replace_tiles_with(
         &mut self,
-        mut rebuilt: Mapper,
+        rebuilt: Mapper,
         t_s: f64,
         stale: impl Fn(TileIndex) -> bool,
     ) -> Vec<TileIndex> {
+        self.replace_cells_with(rebuilt, t_s, stale, |_, _| true)
+    }
+
+    /// [`Mapper::replace_tiles_with`] where, inside a stale tile, only the cells `stale_cell`
+    /// says (global cell indices) are the rebuilt map's: the others keep this map's evidence,
+    /// verdicts and stamps. The tile is still published again. The caller's stale cells must
+    /// take in the neighbourhoods classification and costs read, so that a kept cell's verdict
+    /// does not lean on a cell the rebuild changed.
+    pub fn replace_cells_with(
+        &mut self,
+        mut rebuilt: Mapper,
+        t_s: f64,
+        stale: impl Fn(TileIndex) -> bool,
+        stale_cell: impl Fn(i64, i64) -> bool,
+    ) -> Vec<TileIndex> {
         let stamp = super::evidence::stamp_of(t_s);
         let n = self.lattice.tile_cells as usize;
-        let mut slots: Vec<TileSlot> = Vec::with_capacity(rebuilt.slots.len() + self.slots.len());
+        let lattice = self.lattice;
+        let mut own: Vec<Option<TileSlot>> = self.slots.drain(..).map(Some).collect();
+        let mut slots: Vec<TileSlot> = Vec::with_capacity(rebuilt.slots.len() + own.len());
         for mut s in rebuilt.slots.drain(..) {
             if !stale(s.index) {
                 continue;
@@ -44,24 +61,28 @@ impl Mapper {
             for c in s.live.iter_mut().filter(|c| c.state != CellState::Unknown) {
                 c.stamp_s = c.stamp_s.max(stamp);
             }
+            if let Some(o) = self.slot_of.get(&s.index).and_then(|&i| own[i].take()) {
+                keep_cells(&mut s, &o, &lattice, &stale_cell);
+            }
             slots.push(s);
         }
         let mut tiles: Vec<TileIndex> = slots.iter().map(|s| s.index).collect();
-        for s in self.slots.drain(..) {
+        for s in own.into_iter().flatten() {
             if !stale(s.index) {
                 slots.push(s);
-            } else if rebuilt.slot_of.contains_key(&s.index) {
-                // Taken from the rebuilt map above.
             } else {
+                // Stale, and the rebuilt map does not hold it: unknown but for the kept cells.
                 tiles.push(s.index);
-                slots.push(TileSlot {
+                let mut fresh = TileSlot {
                     index: s.index,
                     data: vec![Default::default(); n * n],
                     ground: vec![f32::INFINITY; n * n],
                     live: vec![Cell::UNKNOWN; n * n],
                     held: vec![0; (n * n).div_ceil(64)],
                     changed: false,
-                });
+                };
+                keep_cells(&mut fresh, &s, &lattice, &stale_cell);
+                slots.push(fresh);
             }
         }
         for s in &mut slots {
@@ -73,12 +94,11 @@ impl Mapper {
             .map(|(i, s)| (s.index, i))
             .collect();
         rebuilt.slots = slots;
-        // Cells of the kept tiles that wait to be classified wait on.
-        let lattice = self.lattice;
+        // Cells this map kept that wait to be classified wait on.
         rebuilt.pending.extend(
             self.pending
                 .iter()
-                .filter(|&&(cx, cy)| !stale(lattice.tile_of_cell(cx, cy).0)),
+                .filter(|&&(cx, cy)| !stale(lattice.tile_of_cell(cx, cy).0) || !stale_cell(cx, cy)),
         );
         rebuilt.last_t_s = match (self.last_t_s, rebuilt.last_t_s) {
             (Some(a), Some(b)) => Some(a.max(b)),
@@ -92,6 +112,32 @@ impl Mapper {
         tiles.sort_unstable();
         *self = rebuilt;
         tiles
+    }
+}
+
+/// Copies into `to` the cells of `from` (the same tile) that `stale_cell` does not claim.
+fn keep_cells(
+    to: &mut TileSlot,
+    from: &TileSlot,
+    lattice: &common::grid::Lattice,
+    stale_cell: impl Fn(i64, i64) -> bool,
+) {
+    let n = lattice.tile_cells as usize;
+    let (cx0, cy0) = lattice.tile_first_cell(to.index);
+    for k in 0..n * n {
+        let (cx, cy) = (cx0 + (k % n) as i64, cy0 + (k / n) as i64);
+        if stale_cell(cx, cy) {
+            continue;
+        }
+        to.data[k] = from.data[k];
+        to.ground[k] = from.ground[k];
+        to.live[k] = from.live[k];
+        let bit = 1u64 << (k & 63);
+        if from.held[k >> 6] & bit != 0 {
+            to.held[k >> 6] |= bit;
+        } else {
+            to.held[k >> 6] &= !bit;
+        }
     }
 }
 
@@ -175,6 +221,48 @@ mod tests {
                 t.index
             );
         }
+    }
+
+    #[test]
+    fn inside_a_stale_tile_only_the_stale_cells_are_the_rebuilt_maps() {
+        let mut drifted = mapped(1.0);
+        let l = drifted.lattice();
+        let (bx, by) = l.cell_of(6.0, 1.0);
+        let box_tile = l.tile_of_cell(bx, by).0;
+        let before = drifted.tiles();
+        let north = ((5.3, 6.7), (0.9, 1.7));
+        let south = ((5.3, 6.7), (-0.7, 0.3));
+        let drifted_north = obstacles_in(&drifted, north.0, north.1);
+        assert!(drifted_north > 0);
+        // Stale: the cells south of y = 0.5 m. North of it the drifted box stays; south of it
+        // the rebuilt one comes in.
+        let (_, split) = l.cell_of(0.0, 0.5);
+        let tiles =
+            drifted.replace_cells_with(mapped(0.0), 17.0, |t| t == box_tile, |_, cy| cy < split);
+        assert_eq!(tiles, vec![box_tile], "the mixed tile goes out again");
+        assert_eq!(obstacles_in(&drifted, north.0, north.1), drifted_north);
+        assert!(
+            obstacles_in(&drifted, south.0, south.1) > 0,
+            "the rebuilt box"
+        );
+        let (nx, ny) = l.cell_of(3.0, 1.1);
+        let was = before
+            .iter()
+            .find(|t| t.index == box_tile)
+            .map(|t| {
+                *t.get(
+                    (nx - l.tile_first_cell(box_tile).0) as u16,
+                    (ny - l.tile_first_cell(box_tile).1) as u16,
+                )
+            })
+            .unwrap();
+        assert_eq!(
+            drifted.cell(nx, ny),
+            was,
+            "a kept cell keeps its verdict and stamp"
+        );
+        let (sx, sy) = l.cell_of(3.0, 0.1);
+        assert_eq!(drifted.cell(sx, sy).stamp_s, 17, "a rebuilt cell");
     }
 
     #[test]
