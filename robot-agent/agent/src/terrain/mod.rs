@@ -5,6 +5,7 @@
 //! [`layers`]: the robot's footprint cleared, a lasting safety stop stamped) and, while
 //! repeating, the taught route's corridor grid.
 
+pub mod cell_correction;
 pub mod cell_mask;
 pub mod layers;
 pub mod rebuild;
@@ -220,6 +221,11 @@ impl TerrainMap {
                 self.shadow = Some(rebuild::Shadow::new(
                     mapping::Mapper::new(self.mapper.config().clone())?,
                     t_s,
+                    cell_correction::CellMoves::new(
+                        self.mapper.lattice(),
+                        kept.min_move_m(),
+                        kept.near_range_m(),
+                    ),
                 ));
             }
         }
@@ -254,6 +260,7 @@ impl TerrainMap {
         };
         for r in kept.after(sh.fed_until, n) {
             sh.follow_frames_before(r.t_s, radius_m);
+            sh.moves.add(&r, base_from_lidar);
             match map_kept(&mut sh.mapper, &r, base_from_lidar) {
                 Ok(u) => self.cleared_cells += u.cleared_cells,
                 Err(e) => {
@@ -281,7 +288,7 @@ impl TerrainMap {
         let stale = kept.stale_tiles(&lattice, reach_m);
         // The step rule reads two cells around a cell, the costs `cost_distance_m`.
         let grow = 2 + (cfg.cost_distance_m / lattice.cell_size_f64()).ceil() as i64;
-        let cells = kept.stale_cells(&lattice, base_from_lidar, grow, STALE_MASK_MAX_CELLS);
+        let cells = sh.moves.finish(&stale, grow, STALE_MASK_MAX_CELLS);
         kept.swapped();
         let thinned = kept.respace();
         let held = self.mapper.tile_count();
@@ -289,14 +296,17 @@ impl TerrainMap {
             sh.mapper,
             t_s,
             |t| stale.contains(&t),
-            |cx, cy| cells.as_ref().is_none_or(|m| m.contains(cx, cy)),
+            |cx, cy| cells.is_stale(cx, cy),
+            |cx, cy| cells.dz_m(cx, cy),
         );
         tracing::info!(
             "map rebuild swapped in at {t_s:.2} s: {} kept sweeps fed since {:.2} s, {} of {held} tiles replaced, {} of their cells rebuilt, {thinned} sweeps kept meanwhile thinned to the spacing",
             sh.fed,
             sh.started_s,
             tiles.len(),
-            cells.as_ref().map_or_else(|| "all".to_string(), |m| m.len().to_string()),
+            cells
+                .stale_cells()
+                .map_or_else(|| "all".to_string(), |n| n.to_string()),
         );
         self.rebuilds += 1;
         Ok(tiles)

@@ -11,12 +11,13 @@
 //! `map_rebuild_min_move_m`, a shadow mapper is fed the kept sweeps in time order at their
 //! corrected poses (`map<-slam` from the graph at each sweep's time), a few per sweep
 //! ([`Shadow`]), and replaces the map's stale tiles (those a moved sweep reaches,
-//! [`SweepStore::stale_tiles`]) once it has caught up; the other tiles keep the live map's
-//! cells, made from every sweep. The replaced tiles are offered for publication again; the
+//! [`SweepStore::stale_tiles`]) once it has caught up, and in them only the cells the
+//! correction moved ([`super::cell_correction`]); the other cells keep the live map's, made
+//! from every sweep. The replaced tiles are offered for publication again; the
 //! publisher sends those whose cells differ, with newer versions, so stations replace them. The store is capped at `map_rebuild_max_mb`: over it, every second
 //! sweep of its oldest half is dropped (the oldest stretch ends up thinnest).
 
-use super::cell_mask::CellMask;
+use super::cell_correction::CellMoves;
 use common::grid::{Lattice, TileIndex};
 use nalgebra::{Isometry3, Point3};
 use sensing::Point;
@@ -97,6 +98,8 @@ pub struct Remap {
     pub t_s: f64,
     /// Corrected `map<-base_link`.
     pub map_from_base: Isometry3<f64>,
+    /// `map<-base_link` the live map has it at.
+    pub live_from_base: Isometry3<f64>,
     /// Returns in the lidar frame.
     pub points: Vec<[f32; 3]>,
 }
@@ -123,6 +126,17 @@ impl SweepStore {
             dropped: 0,
             last_move: (0.0, 0),
         }
+    }
+
+    /// A kept sweep moving by no more than this is not rebuilt for, metres.
+    pub fn min_move_m(&self) -> f64 {
+        self.min_move_m
+    }
+
+    /// Returns farther than this from the sensor are kept as their beam's direction only, and
+    /// restored farther out than it, metres.
+    pub fn near_range_m(&self) -> f64 {
+        f64::from(NEAR_RANGE * self.max_range_m)
     }
 
     /// Sweeps kept.
@@ -365,49 +379,6 @@ impl SweepStore {
         stale
     }
 
-    /// The cells within `grow` cells of a return of a kept sweep (at the pose the live map has
-    /// it or at its rebuilt one) that the rebuilt pose moves by more than `min_move_m` from
-    /// where the live map has it: the cells a correction touched. The live map's other cells
-    /// hold evidence whose every kept sweep is where it was, and the sweeps between kept ones
-    /// moved about as much as their neighbours; `grow` takes in the neighbourhoods the step
-    /// rule and the costs read. Returns beyond the range ([`FAR`]) only mark free space and
-    /// are left out. None when the touched cells span more than `max_cells` cells' bounding
-    /// box (then every cell of a stale tile counts).
-    pub fn stale_cells(
-        &self,
-        lattice: &Lattice,
-        base_from_lidar: &Isometry3<f64>,
-        grow: i64,
-        max_cells: usize,
-    ) -> Option<CellMask> {
-        let mut cells: Vec<(i64, i64)> = Vec::new();
-        let min2 = (self.min_move_m * self.min_move_m) as f32;
-        for s in &self.sweeps {
-            let delta = (s.mapped_at * s.live_at.inverse()).cast::<f32>();
-            let map_from_lidar = (s.live_at * base_from_lidar).cast::<f32>();
-            let mut last = (i64::MIN, i64::MIN);
-            for q in s.points.iter().filter(|q| q[0] != FAR) {
-                let r = self.restore(q);
-                let p = map_from_lidar * Point3::new(r[0], r[1], r[2]);
-                let moved = delta * p;
-                if (moved - p).norm_squared() <= min2 {
-                    continue;
-                }
-                for m in [p, moved] {
-                    let c = lattice.cell_of(f64::from(m.x), f64::from(m.y));
-                    // Returns in sweep order are mostly in the cell of the one before.
-                    if c != last {
-                        cells.push(c);
-                        last = c;
-                    }
-                }
-            }
-        }
-        cells.sort_unstable();
-        cells.dedup();
-        CellMask::grown(&cells, grow, max_cells)
-    }
-
     /// A rebuild that fed every kept sweep replaced the live map's stale tiles: the live map
     /// has them where the rebuild put them.
     pub fn swapped(&mut self) {
@@ -426,6 +397,7 @@ impl SweepStore {
             .map(|s| Remap {
                 t_s: s.t_s,
                 map_from_base: s.mapped_at,
+                live_from_base: s.live_at,
                 points: s.points.iter().map(|q| self.restore(q)).collect(),
             })
             .collect()
@@ -486,17 +458,21 @@ pub struct Shadow {
     /// kept sweep when it came, oldest first: the shadow takes each one once it has fed that
     /// sweep, before the next ([`Shadow::follow_frames_before`]).
     pub pending_shifts: Vec<(f64, Isometry3<f64>)>,
+    /// How the kept sweeps fed so far moved the live map's cells.
+    pub moves: CellMoves,
 }
 
 impl Shadow {
-    /// A rebuild from the first kept sweep, started by the live sweep at `started_s`.
-    pub fn new(mapper: mapping::Mapper, started_s: f64) -> Self {
+    /// A rebuild from the first kept sweep, started by the live sweep at `started_s`,
+    /// gathering the cells' moves into `moves`.
+    pub fn new(mapper: mapping::Mapper, started_s: f64, moves: CellMoves) -> Self {
         Self {
             mapper,
             fed_until: None,
             fed: 0,
             started_s,
             pending_shifts: Vec::new(),
+            moves,
         }
     }
 
@@ -531,11 +507,12 @@ pub fn to_map(r: &Remap, base_from_lidar: &Isometry3<f64>) -> (Vec<[f32; 3]>, [f
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use slam::se3;
 
-    fn pt(x: f32) -> Point {
+    /// A return `x` metres ahead of the lidar.
+    pub(in crate::terrain) fn pt(x: f32) -> Point {
         Point {
             x,
             y: 0.0,
@@ -544,57 +521,6 @@ mod tests {
             ring: 0,
             t_s: 0.0,
         }
-    }
-
-    #[test]
-    fn the_stale_cells_are_around_the_returns_a_correction_moved() {
-        let lattice = Lattice {
-            cell_size_m: 0.2,
-            tile_cells: 64,
-        };
-        let blf = se3::from_xyz_rpy([0.0, 0.0, 0.7], [0.0; 3]);
-        let mut st = SweepStore::new(0.5, 0.05, 30.0, 100.0);
-        for i in 0..3 {
-            // Sweeps at x = 0, 100, 200 m, each with returns 1.1 m and 25.1 m ahead (off the
-            // cell edges, which the millimetre quantisation could cross).
-            let p = se3::from_xyz_rpy([100.0 * f64::from(i), 0.0, 0.0], [0.0; 3]);
-            st.offer(f64::from(i), &p, &p, &[pt(1.1), pt(25.1)], false);
-        }
-        let cells = st.stale_cells(&lattice, &blf, 2, 1 << 20).unwrap();
-        assert!(cells.is_empty(), "nothing moved yet");
-        // The middle sweep moves 0.3 m sideways.
-        let mid = se3::from_xyz_rpy([0.0, 0.3, 0.0], [0.0; 3]);
-        st.correct(
-            |t| Some(if t == 1.0 { mid } else { Isometry3::identity() }),
-            None,
-        );
-        let cells = st.stale_cells(&lattice, &blf, 2, 1 << 20).unwrap();
-        let has = |x: f64, y: f64| {
-            let (cx, cy) = lattice.cell_of(x, y);
-            cells.contains(cx, cy)
-        };
-        // Where the live map has its returns, where the rebuild puts them, and two cells on.
-        assert!(has(101.0, 0.0) && has(101.0, 0.3) && has(125.0, 0.0) && has(125.0, 0.3));
-        assert!(has(101.0, 0.65) && has(100.65, 0.0));
-        assert!(!has(101.0, 0.9) && !has(113.0, 0.0), "beyond the growth");
-        assert!(
-            !has(1.0, 0.0) && !has(201.0, 0.0),
-            "sweeps that did not move"
-        );
-        assert_eq!(cells.len(), 2 * 5 * 6, "two 5 x 6 blocks");
-        st.swapped();
-        // A turn of 0.5 deg about the first sweep moves its return 1.1 m out by 10 mm, the one
-        // 25.1 m out by 0.22 m: only the far one's cells are stale.
-        let turn = se3::from_xyz_rpy([0.0; 3], [0.0, 0.0, 0.5_f64.to_radians()]);
-        st.correct(|t| Some(if t == 0.0 { turn } else { mid }), None);
-        let cells = st.stale_cells(&lattice, &blf, 0, 1 << 20).unwrap();
-        let has = |x: f64, y: f64| {
-            let (cx, cy) = lattice.cell_of(x, y);
-            cells.contains(cx, cy)
-        };
-        assert!(has(25.1, 0.0) && has(25.09, 0.21) && !has(1.0, 0.0));
-        // A mask too large to hold: the caller replaces whole tiles.
-        assert!(st.stale_cells(&lattice, &blf, 0, 10).is_none());
     }
 
     #[test]

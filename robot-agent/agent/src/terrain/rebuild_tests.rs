@@ -203,6 +203,7 @@ fn the_quantised_kept_sweeps_rebuild_nearly_the_map_the_full_precision_sweeps_ma
         let r = Remap {
             t_s,
             map_from_base: at(x, 0.0, 0.0),
+            live_from_base: at(x, 0.0, 0.0),
             points: points.iter().map(|p| [p.x, p.y, p.z]).collect(),
         };
         let (pts, origin) = to_map(&r, &blf);

@@ -154,6 +154,16 @@ impl Default for CellData {
 }
 
 impl CellData {
+    /// Every stored height moved by `dz` metres (a frame or pose correction).
+    pub(super) fn shift_heights(&mut self, dz: f64) {
+        self.cur = self.cur.shifted(dz);
+        self.prev = self.prev.shifted(dz);
+        self.pending = self.pending.shifted(dz);
+        if self.driven {
+            self.driven_z += dz as f32;
+        }
+    }
+
     /// Both epochs' evidence together.
     #[inline]
     pub(super) fn evidence(&self) -> Moments {

@@ -90,13 +90,7 @@ impl Mapper {
                 } else {
                     robot.z_m
                 };
-                let dz = weight * dz_at(x, y, z);
-                d.cur = d.cur.shifted(dz);
-                d.prev = d.prev.shifted(dz);
-                d.pending = d.pending.shifted(dz);
-                if d.driven {
-                    d.driven_z += dz as f32;
-                }
+                d.shift_heights(weight * dz_at(x, y, z));
                 slot.ground[i] = d.ground(min_n);
                 moved += 1;
             }

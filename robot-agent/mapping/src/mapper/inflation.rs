@@ -127,15 +127,7 @@ impl Mapper {
         let Some(d) = self.data(cx, cy) else {
             return Cell::UNKNOWN;
         };
-        let ev = d.evidence().stats();
-        let height_m = if d.driven && ev.n < self.rules.min_points() {
-            f64::from(d.driven_z)
-        } else {
-            ev.mean_m
-        };
-        let height_cm = (height_m * 100.0)
-            .round()
-            .clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16;
+        let height_cm = output_height_cm(d, self.rules.min_points());
         let (state, cost) = match d.class {
             Class::Unknown | Class::Undecided | Class::Overhung => return Cell::UNKNOWN,
             Class::Obstacle | Class::NegativeObstacle => (CellState::Obstacle, 255),
@@ -143,11 +135,6 @@ impl Mapper {
                 Some(k @ (CellState::Traversable | CellState::Inflated, _)) => k,
                 _ => self.inflation(cx, cy),
             },
-        };
-        let height_cm = if d.class == Class::NegativeObstacle && ev.n == 0 {
-            0
-        } else {
-            height_cm
         };
         Cell {
             state,
@@ -183,4 +170,21 @@ impl Mapper {
             None => (CellState::Traversable, 0),
         }
     }
+}
+
+/// The height a cell's output shows, centimetres: its evidence's mean, or where the robot drove
+/// over it when that is all there is; 0 for a drop-off seen only as missing ground.
+pub(super) fn output_height_cm(d: &super::cell_data::CellData, min_points: u32) -> i16 {
+    let ev = d.evidence().stats();
+    if d.class == Class::NegativeObstacle && ev.n == 0 {
+        return 0;
+    }
+    let height_m = if d.driven && ev.n < min_points {
+        f64::from(d.driven_z)
+    } else {
+        ev.mean_m
+    };
+    (height_m * 100.0)
+        .round()
+        .clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16
 }

@@ -31,12 +31,13 @@ impl Mapper {
         t_s: f64,
         stale: impl Fn(TileIndex) -> bool,
     ) -> Vec<TileIndex> {
-        self.replace_cells_with(rebuilt, t_s, stale, |_, _| true)
+        self.replace_cells_with(rebuilt, t_s, stale, |_, _| true, |_, _| 0.0)
     }
 
     /// [`Mapper::replace_tiles_with`] where, inside a stale tile, only the cells `stale_cell`
     /// says (global cell indices) are the rebuilt map's: the others keep this map's evidence,
-    /// verdicts and stamps. The tile is still published again. The caller's stale cells must
+    /// verdicts and stamps, their heights moved by `dz_of` metres (the vertical part of the
+    /// correction there). The tile is still published again. The caller's stale cells must
     /// take in the neighbourhoods classification and costs read, so that a kept cell's verdict
     /// does not lean on a cell the rebuild changed.
     pub fn replace_cells_with(
@@ -45,7 +46,13 @@ impl Mapper {
         t_s: f64,
         stale: impl Fn(TileIndex) -> bool,
         stale_cell: impl Fn(i64, i64) -> bool,
+        dz_of: impl Fn(i64, i64) -> f64,
     ) -> Vec<TileIndex> {
+        let min_points = self.rules.min_points();
+        let lat = self.lattice;
+        let keep = |to: &mut TileSlot, from: &TileSlot| {
+            keep_cells(to, from, &lat, &stale_cell, &dz_of, min_points);
+        };
         let stamp = super::evidence::stamp_of(t_s);
         let n = self.lattice.tile_cells as usize;
         let lattice = self.lattice;
@@ -62,7 +69,7 @@ impl Mapper {
                 c.stamp_s = c.stamp_s.max(stamp);
             }
             if let Some(o) = self.slot_of.get(&s.index).and_then(|&i| own[i].take()) {
-                keep_cells(&mut s, &o, &lattice, &stale_cell);
+                keep(&mut s, &o);
             }
             slots.push(s);
         }
@@ -81,7 +88,7 @@ impl Mapper {
                     held: vec![0; (n * n).div_ceil(64)],
                     changed: false,
                 };
-                keep_cells(&mut fresh, &s, &lattice, &stale_cell);
+                keep(&mut fresh, &s);
                 slots.push(fresh);
             }
         }
@@ -115,12 +122,15 @@ impl Mapper {
     }
 }
 
-/// Copies into `to` the cells of `from` (the same tile) that `stale_cell` does not claim.
+/// Copies into `to` the cells of `from` (the same tile) that `stale_cell` does not claim,
+/// their heights moved by `dz_of`.
 fn keep_cells(
     to: &mut TileSlot,
     from: &TileSlot,
     lattice: &common::grid::Lattice,
     stale_cell: impl Fn(i64, i64) -> bool,
+    dz_of: impl Fn(i64, i64) -> f64,
+    min_points: u32,
 ) {
     let n = lattice.tile_cells as usize;
     let (cx0, cy0) = lattice.tile_first_cell(to.index);
@@ -135,6 +145,15 @@ fn keep_cells(
         let bit = 1u64 << (k & 63);
         if from.held[k >> 6] & bit != 0 {
             to.held[k >> 6] |= bit;
+            let dz = dz_of(cx, cy);
+            if dz != 0.0 && dz.is_finite() {
+                let d = &mut to.data[k];
+                d.shift_heights(dz);
+                to.ground[k] = d.ground(min_points);
+                if to.live[k].state != CellState::Unknown {
+                    to.live[k].height_cm = super::inflation::output_height_cm(d, min_points);
+                }
+            }
         } else {
             to.held[k >> 6] &= !bit;
         }
@@ -237,8 +256,14 @@ mod tests {
         // Stale: the cells south of y = 0.5 m. North of it the drifted box stays; south of it
         // the rebuilt one comes in.
         let (_, split) = l.cell_of(0.0, 0.5);
-        let tiles =
-            drifted.replace_cells_with(mapped(0.0), 17.0, |t| t == box_tile, |_, cy| cy < split);
+        // The kept cells move up 5 cm.
+        let tiles = drifted.replace_cells_with(
+            mapped(0.0),
+            17.0,
+            |t| t == box_tile,
+            |_, cy| cy < split,
+            |_, _| 0.05,
+        );
         assert_eq!(tiles, vec![box_tile], "the mixed tile goes out again");
         assert_eq!(obstacles_in(&drifted, north.0, north.1), drifted_north);
         assert!(
@@ -256,11 +281,13 @@ mod tests {
                 )
             })
             .unwrap();
+        let now = drifted.cell(nx, ny);
         assert_eq!(
-            drifted.cell(nx, ny),
-            was,
+            (now.state, now.stamp_s, now.hits),
+            (was.state, was.stamp_s, was.hits),
             "a kept cell keeps its verdict and stamp"
         );
+        assert_eq!(now.height_cm, was.height_cm + 5, "and moves up 5 cm");
         let (sx, sy) = l.cell_of(3.0, 0.1);
         assert_eq!(drifted.cell(sx, sy).stamp_s, 17, "a rebuilt cell");
     }
