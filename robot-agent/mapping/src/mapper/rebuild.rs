@@ -49,13 +49,12 @@ impl Mapper {
         dz_of: impl Fn(i64, i64) -> f64,
     ) -> Vec<TileIndex> {
         let min_points = self.rules.min_points();
-        let lat = self.lattice;
+        let lattice = self.lattice;
         let keep = |to: &mut TileSlot, from: &TileSlot| {
-            keep_cells(to, from, &lat, &stale_cell, &dz_of, min_points);
+            keep_cells(to, from, &lattice, &stale_cell, &dz_of, min_points);
         };
         let stamp = super::evidence::stamp_of(t_s);
-        let n = self.lattice.tile_cells as usize;
-        let lattice = self.lattice;
+        let n = lattice.tile_cells as usize;
         let mut own: Vec<Option<TileSlot>> = self.slots.drain(..).map(Some).collect();
         let mut slots: Vec<TileSlot> = Vec::with_capacity(rebuilt.slots.len() + own.len());
         for mut s in rebuilt.slots.drain(..) {
