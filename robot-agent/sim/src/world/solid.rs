@@ -81,11 +81,11 @@ impl Solid {
         }
     }
 
-    /// Horizontal distance from (x, y) to the footprint, metres (0 inside).
-    pub fn footprint_distance(&self, x: f64, y: f64) -> f64 {
+    /// The horizontal footprint: a disc (centre, radius) or an oriented box.
+    fn footprint(&self) -> Footprint {
         match self.shape {
             Shape::Cylinder { cx, cy, r } | Shape::Ellipsoid { cx, cy, r } => {
-                ((x - cx).hypot(y - cy) - r).max(0.0)
+                Footprint::Disc { cx, cy, r }
             }
             Shape::Box {
                 cx,
@@ -93,14 +93,21 @@ impl Solid {
                 hx,
                 hy,
                 yaw,
-            } => Obb {
+            } => Footprint::Box(Obb {
                 cx,
                 cy,
                 hx,
                 hy,
                 yaw,
-            }
-            .distance_to(x, y),
+            }),
+        }
+    }
+
+    /// Horizontal distance from (x, y) to the footprint, metres (0 inside).
+    pub fn footprint_distance(&self, x: f64, y: f64) -> f64 {
+        match self.footprint() {
+            Footprint::Disc { cx, cy, r } => ((x - cx).hypot(y - cy) - r).max(0.0),
+            Footprint::Box(o) => o.distance_to(x, y),
         }
     }
 
@@ -180,25 +187,17 @@ impl Solid {
 
     /// Whether the footprint overlaps an oriented rectangle.
     pub fn overlaps(&self, r: &Obb) -> bool {
-        match self.shape {
-            Shape::Cylinder { cx, cy, r: rad } | Shape::Ellipsoid { cx, cy, r: rad } => {
-                r.distance_to(cx, cy) <= rad
-            }
-            Shape::Box {
-                cx,
-                cy,
-                hx,
-                hy,
-                yaw,
-            } => r.overlaps(&Obb {
-                cx,
-                cy,
-                hx,
-                hy,
-                yaw,
-            }),
+        match self.footprint() {
+            Footprint::Disc { cx, cy, r: rad } => r.distance_to(cx, cy) <= rad,
+            Footprint::Box(o) => r.overlaps(&o),
         }
     }
+}
+
+/// A solid's horizontal footprint ([`Solid::footprint`]).
+enum Footprint {
+    Disc { cx: f64, cy: f64, r: f64 },
+    Box(Obb),
 }
 
 #[inline]
