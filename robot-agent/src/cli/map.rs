@@ -78,6 +78,12 @@ struct EvalArgs {
     /// nothing moved.
     #[arg(long)]
     rebuild_check: bool,
+    /// Also map every sweep at its true pose into a second map, and report how far each pole
+    /// and trunk lies from where that map puts it (`obstacle_shifts` in the JSON): the
+    /// robot's localisation's share of the position error, without the one-sided-view floor
+    /// of the distance to the true centre. Costs a second map update per sweep.
+    #[arg(long, conflicts_with = "use_truth_poses")]
+    truth_twin: bool,
 }
 
 #[derive(Debug, clap::Args)]
@@ -395,6 +401,7 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
         opts.agent.slam.graph.enabled = on;
     }
     opts.rebuild_check = a.rebuild_check;
+    opts.truth_twin = a.truth_twin;
     if let Some(dir) = &a.tiles_out {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         opts.tiles_out = Some(dir.clone());
@@ -430,6 +437,13 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
             o.mean_surface_distance_m, o.body.found, o.body.mean_error_m,
             o.body.median_error_m, o.body.max_error_m, r.graph
         );
+        if let Some(s) = &r.obstacle_shifts {
+            eprintln!(
+                "against the same sweeps at their true poses: {} compared, shift mean {:.3} m median {:.3} m max {:.3} m; raised cells: {} compared, mean {:.3} m median {:.3} m max {:.3} m",
+                s.compared, s.mean_shift_m, s.median_shift_m, s.max_shift_m, s.body.compared,
+                s.body.mean_shift_m, s.body.median_shift_m, s.body.max_shift_m
+            );
+        }
         println!(
             "cells {} accuracy {:.4} obstacle_recall {:.4} false_obstacle_rate {:.4} curb5_10_recall {:.4} ms_per_update {:.2}",
             r.cells, r.accuracy, r.obstacle_recall, r.false_obstacle_rate, r.curb5_10_recall, r.ms_per_update

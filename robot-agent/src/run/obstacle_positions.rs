@@ -82,34 +82,50 @@ fn raised(mapper: &Mapper, cx: i64, cy: i64, h_max_m: f64) -> bool {
         .any(|n| h - n > h_max_m)
 }
 
-/// Scores the mapper's obstacle cells against the world's poles and trunks.
-pub fn score(mapper: &Mapper, world: &sim::World) -> ObstaclePositions {
+/// One pole or trunk and the map's cells that are taken for it.
+struct ObjectCells {
+    /// True centre, metres.
+    centre: (f64, f64),
+    /// Sum of x, y and surface distance over its obstacle cells, and their count.
+    all: (f64, f64, f64, usize),
+    /// Sum of x, y over its raised cells, and their count.
+    raised: (f64, f64, usize),
+}
+
+impl ObjectCells {
+    fn centroid(&self) -> Option<(f64, f64)> {
+        let (sx, sy, _, n) = self.all;
+        (n > 0).then(|| (sx / n as f64, sy / n as f64))
+    }
+
+    fn raised_centroid(&self) -> Option<(f64, f64)> {
+        let (sx, sy, n) = self.raised;
+        (n > 0).then(|| (sx / n as f64, sy / n as f64))
+    }
+}
+
+/// The world's poles and trunks with the mapper's cells for each (see the module docs).
+fn object_cells(mapper: &Mapper, world: &sim::World) -> Vec<ObjectCells> {
     // Canopies hang above the robot: their cells are the trunks' or the ground's.
     let solids: Vec<&Solid> = world
         .solids()
         .iter()
         .filter(|s| s.kind != SolidKind::Canopy)
         .collect();
-    let objects: Vec<(usize, f64, f64, f64)> = solids
-        .iter()
-        .enumerate()
-        .filter_map(|(k, s)| match (s.kind, s.shape) {
-            (SolidKind::Pole | SolidKind::Trunk, Shape::Cylinder { cx, cy, r }) => {
-                Some((k, cx, cy, r))
-            }
-            _ => None,
-        })
-        .collect();
-    let mut out = ObstaclePositions {
-        objects: objects.len(),
-        ..Default::default()
-    };
     let lattice = mapper.lattice();
     let h_max_m = mapper.config().h_max_m();
-    // Per object: sum of x, y, surface distance, count; and x, y, count of the raised cells.
-    let mut acc = vec![(0.0, 0.0, 0.0, 0usize); objects.len()];
-    let mut body = vec![(0.0, 0.0, 0usize); objects.len()];
-    for (i, &(k, ox, oy, r)) in objects.iter().enumerate() {
+    let mut out = Vec::new();
+    for (k, s) in solids.iter().enumerate() {
+        let (SolidKind::Pole | SolidKind::Trunk, Shape::Cylinder { cx: ox, cy: oy, r }) =
+            (s.kind, s.shape)
+        else {
+            continue;
+        };
+        let mut o = ObjectCells {
+            centre: (ox, oy),
+            all: (0.0, 0.0, 0.0, 0),
+            raised: (0.0, 0.0, 0),
+        };
         let reach = r + SEARCH_M;
         let (c0x, c0y) = lattice.cell_of(ox - reach, oy - reach);
         let (c1x, c1y) = lattice.cell_of(ox + reach, oy + reach);
@@ -128,13 +144,13 @@ pub fn score(mapper: &Mapper, world: &sim::World) -> ObstaclePositions {
                     .enumerate()
                     .all(|(j, o)| j == k || o.footprint_distance(x, y) >= d);
                 if nearest {
-                    let a = &mut acc[i];
+                    let a = &mut o.all;
                     a.0 += x;
                     a.1 += y;
                     a.2 += d;
                     a.3 += 1;
                     if raised(mapper, cx, cy, h_max_m) {
-                        let b = &mut body[i];
+                        let b = &mut o.raised;
                         b.0 += x;
                         b.1 += y;
                         b.2 += 1;
@@ -142,19 +158,31 @@ pub fn score(mapper: &Mapper, world: &sim::World) -> ObstaclePositions {
                 }
             }
         }
+        out.push(o);
     }
+    out
+}
+
+/// Scores the mapper's obstacle cells against the world's poles and trunks.
+pub fn score(mapper: &Mapper, world: &sim::World) -> ObstaclePositions {
+    let objects = object_cells(mapper, world);
+    let mut out = ObstaclePositions {
+        objects: objects.len(),
+        ..Default::default()
+    };
     let mut errors = Vec::new();
     let mut surface_sum = 0.0;
     let mut cells = 0usize;
-    for (&(_, ox, oy, _), &(sx, sy, sd, n)) in objects.iter().zip(&acc) {
-        if n == 0 {
+    for o in &objects {
+        let Some((x, y)) = o.centroid() else {
             continue;
-        }
-        let e = (sx / n as f64 - ox).hypot(sy / n as f64 - oy);
+        };
+        let (ox, oy) = o.centre;
+        let e = (x - ox).hypot(y - oy);
         errors.push(e);
-        surface_sum += sd;
-        cells += n;
-        out.per_object.push((ox, oy, e, n));
+        surface_sum += o.all.2;
+        cells += o.all.3;
+        out.per_object.push((ox, oy, e, o.all.3));
     }
     out.found = errors.len();
     if !errors.is_empty() {
@@ -162,11 +190,12 @@ pub fn score(mapper: &Mapper, world: &sim::World) -> ObstaclePositions {
         out.mean_surface_distance_m = surface_sum / cells as f64;
     }
     let mut errors = Vec::new();
-    for (&(_, ox, oy, _), &(sx, sy, n)) in objects.iter().zip(&body) {
-        if n > 0 {
-            let e = (sx / n as f64 - ox).hypot(sy / n as f64 - oy);
+    for o in &objects {
+        if let Some((x, y)) = o.raised_centroid() {
+            let (ox, oy) = o.centre;
+            let e = (x - ox).hypot(y - oy);
             errors.push(e);
-            out.body.per_object.push((ox, oy, e, n));
+            out.body.per_object.push((ox, oy, e, o.raised.2));
         }
     }
     out.body.found = errors.len();
@@ -175,6 +204,74 @@ pub fn score(mapper: &Mapper, world: &sim::World) -> ObstaclePositions {
         out.body.median_error_m,
         out.body.max_error_m,
     ) = summary(&mut errors);
+    out
+}
+
+/// How far each pole or trunk lies from where a reference map of the same sweeps puts it.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct ObstacleShifts {
+    /// Objects found in both maps (all obstacle cells).
+    pub compared: usize,
+    /// Mean distance between the two maps' centroids of an object's cells, metres.
+    pub mean_shift_m: f64,
+    /// Median of those distances, metres.
+    pub median_shift_m: f64,
+    /// Largest of those distances, metres.
+    pub max_shift_m: f64,
+    /// Per compared object: x, y (truth, metres), shift (metres).
+    pub per_object: Vec<(f64, f64, f64)>,
+    /// The same over the raised cells only.
+    pub body: BodyShifts,
+}
+
+/// [`ObstacleShifts`] over each object's raised cells.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct BodyShifts {
+    /// Objects with raised cells in both maps.
+    pub compared: usize,
+    /// Mean shift, metres.
+    pub mean_shift_m: f64,
+    /// Median shift, metres.
+    pub median_shift_m: f64,
+    /// Largest shift, metres.
+    pub max_shift_m: f64,
+    /// Per compared object: x, y (truth, metres), shift (metres).
+    pub per_object: Vec<(f64, f64, f64)>,
+}
+
+/// Per pole and trunk, the distance between where `mapper` and `reference` put its cells.
+///
+/// With `reference` the same sweeps mapped at the true poses (`map eval --truth-twin`), the
+/// sensor, the views and the mapping are the same on both sides: what differs is the pose each
+/// sweep was mapped at, so this is the localisation's share of [`score`]'s error, without the
+/// floor a one-sided view puts under a centroid's distance from the true centre.
+pub fn shifts(mapper: &Mapper, reference: &Mapper, world: &sim::World) -> ObstacleShifts {
+    let ours = object_cells(mapper, world);
+    let theirs = object_cells(reference, world);
+    let mut out = ObstacleShifts::default();
+    let mut all = Vec::new();
+    let mut body = Vec::new();
+    for (a, b) in ours.iter().zip(&theirs) {
+        let (ox, oy) = a.centre;
+        if let (Some(p), Some(q)) = (a.centroid(), b.centroid()) {
+            let d = (p.0 - q.0).hypot(p.1 - q.1);
+            all.push(d);
+            out.per_object.push((ox, oy, d));
+        }
+        if let (Some(p), Some(q)) = (a.raised_centroid(), b.raised_centroid()) {
+            let d = (p.0 - q.0).hypot(p.1 - q.1);
+            body.push(d);
+            out.body.per_object.push((ox, oy, d));
+        }
+    }
+    out.compared = all.len();
+    (out.mean_shift_m, out.median_shift_m, out.max_shift_m) = summary(&mut all);
+    out.body.compared = body.len();
+    (
+        out.body.mean_shift_m,
+        out.body.median_shift_m,
+        out.body.max_shift_m,
+    ) = summary(&mut body);
     out
 }
 
@@ -198,6 +295,11 @@ mod tests {
 
     /// The trunk mapped from sweeps taken along y = 4 m from x = 2 to 10 m.
     fn mapped(with_box: bool) -> Mapper {
+        mapped_off(with_box, 0.0)
+    }
+
+    /// As [`mapped`], every sweep mapped `dx_m` east of where it was taken (a pose error).
+    fn mapped_off(with_box: bool, dx_m: f64) -> Mapper {
         let spec = LidarSpec {
             az_step_deg: 0.2,
             max_range_m: 20.0,
@@ -208,7 +310,11 @@ mod tests {
         let height = |x: f64, y: f64| world(x, y, with_box);
         for i in 0..17 {
             let x = 2.0 + 0.5 * f64::from(i);
-            let pts = cast_scan(&height, [x, 4.0, 0.7], &spec, &mut rng);
+            let pts = cast_scan(&height, [x, 4.0, 0.7], &spec, &mut rng)
+                .into_iter()
+                .map(|p| [p[0] + dx_m as f32, p[1], p[2]])
+                .collect();
+            let x = x + dx_m;
             let robot = RobotPose {
                 x_m: x,
                 y_m: 4.0,
@@ -263,5 +369,20 @@ mod tests {
         assert!(o.per_object[0].3 < blind.per_object[0].3, "{o:?} {blind:?}");
         assert!(o.max_error_m < blind.max_error_m, "{o:?} {blind:?}");
         assert!(o.body.max_error_m <= 0.2 + 0.1 + 1e-9, "{o:?}");
+    }
+
+    #[test]
+    fn shifts_against_a_map_of_the_same_sweeps_are_the_pose_error() {
+        let world = truth(6.0, false);
+        let right = mapped(false);
+        let same = shifts(&right, &right, &world);
+        assert_eq!((same.compared, same.body.compared), (1, 1), "{same:?}");
+        assert_eq!((same.max_shift_m, same.body.max_shift_m), (0.0, 0.0));
+        // Every sweep 0.4 m (two cells) east: the trunk's cells move with them, and the shift
+        // says so while the centroid's distance from the centre mixes it with the view.
+        let off = mapped_off(false, 0.4);
+        let s = shifts(&off, &right, &world);
+        assert!((s.body.max_shift_m - 0.4).abs() <= 0.1, "{s:?}");
+        assert!((s.max_shift_m - 0.4).abs() <= 0.1, "{s:?}");
     }
 }

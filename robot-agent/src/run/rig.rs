@@ -68,6 +68,9 @@ pub struct Rig {
     pub(super) trajectory: Vec<(f64, f64)>,
     /// How sweeps reach the map.
     pub scan_mode: ScanMode,
+    /// When set (evaluations only), every localised sweep is also mapped here at its true
+    /// pose, de-skewed with the true motion: the same sweeps' map without the pose error.
+    pub truth_twin: Option<mapping::Mapper>,
     /// When set, the wall time of every stage of the agent is recorded here (the pipeline
     /// bench); the agent itself never reads a clock.
     pub stage_times: Option<stages::StageTimes>,
@@ -137,6 +140,7 @@ impl Rig {
             outputs: None,
             publisher,
             scan_mode: ScanMode::Localised,
+            truth_twin: None,
             stage_times: None,
             drive_override: None,
             tiles_published: 0,
@@ -268,6 +272,18 @@ impl Rig {
                         }
                         _ => crate::runtime::deliver(&mut self.agent, &input).slam_failed,
                     };
+                    if self.truth_twin.is_some() {
+                        let Input::Scan(scan) = &input else {
+                            unreachable!("the input was made from the scan")
+                        };
+                        let (points, origin, robot) = self.truth_sweep(scan);
+                        if let Some(twin) = self.truth_twin.as_mut() {
+                            if let Err(e) = twin.update_sweep(points, origin, &robot, scan.stamp_s)
+                            {
+                                tracing::warn!("truth twin at {:.2} s: {e}", scan.stamp_s);
+                            }
+                        }
+                    }
                 }
                 ScanMode::TruthPoses => {
                     let (points, origin, robot) = self.truth_sweep(&scan);

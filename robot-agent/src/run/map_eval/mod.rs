@@ -46,6 +46,10 @@ pub struct MapEvalOptions {
     /// (`Mapper::describe`), a line with the time and the pose against the truth goes to
     /// stderr. Why a cell ended up wrong is usually in when it changed and from where.
     pub trace_cells: Vec<(f64, f64)>,
+    /// Also map every sweep at its true pose into a second map and score where the robot's map
+    /// puts the poles and trunks against it (`obstacle_shifts`): the localisation's share of
+    /// the position error. Ignored with `use_truth_poses`.
+    pub truth_twin: bool,
 }
 
 impl Default for MapEvalOptions {
@@ -59,6 +63,7 @@ impl Default for MapEvalOptions {
             tiles_out: None,
             rebuild_check: false,
             trace_cells: Vec::new(),
+            truth_twin: false,
         }
     }
 }
@@ -83,6 +88,11 @@ pub fn run(
     } else {
         ScanMode::Localised
     };
+    if opts.truth_twin && !opts.use_truth_poses {
+        let cfg = rig.agent.mapper().config().clone();
+        rig.truth_twin =
+            Some(Mapper::new(cfg).map_err(|e| anyhow::anyhow!("truth twin's mapper: {e}"))?);
+    }
     let write_error: Rc<RefCell<Option<anyhow::Error>>> = Rc::default();
     if let Some(dir) = opts.tiles_out.clone() {
         let err = write_error.clone();
@@ -173,6 +183,13 @@ pub fn run(
         &mut rep,
     );
     rep.obstacle_positions = super::obstacle_positions::score(mapper, rig.sim.world());
+    if let Some(twin) = &rig.truth_twin {
+        rep.obstacle_shifts = Some(super::obstacle_positions::shifts(
+            mapper,
+            twin,
+            rig.sim.world(),
+        ));
+    }
     if let Some(g) = rig.agent.localiser().graph_stats() {
         let (map_rebuilds, kept_sweeps) = rig.agent.terrain().rebuild_counts();
         let (kept_bytes, kept_dropped) = rig.agent.terrain().rebuild_memory();

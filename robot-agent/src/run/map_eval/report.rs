@@ -89,6 +89,10 @@ pub struct MapEvalReport {
     pub errors: ErrorCounts,
     /// Where the map put the world's poles and tree trunks against the truth.
     pub obstacle_positions: crate::run::obstacle_positions::ObstaclePositions,
+    /// With `--truth-twin`: where the map puts the poles and trunks against the map of the
+    /// same sweeps at their true poses (the localisation's share of the position error).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub obstacle_shifts: Option<crate::run::obstacle_positions::ObstacleShifts>,
     /// The pose graph's work (zero when `[graph] enabled` is false): keyframes, GNSS factors,
     /// loops, optimisations, map rebuilds and the sweeps kept for them.
     pub graph: GraphReport,
