@@ -17,6 +17,7 @@
 
 pub mod adaptive;
 pub mod config;
+mod deskew;
 pub mod eval;
 pub mod filters;
 pub mod graph;

@@ -2,11 +2,12 @@
 
 use crate::adaptive::{self, Adaptive};
 use crate::config::Config;
+use crate::deskew::{deskew_constant, GyroTrack};
 use crate::filters::{self, OrientedCloud};
 use crate::icp::{self, IcpResult, IcpStatus};
 use crate::map::{Map, MapUpdateStats};
 use crate::se3;
-use nalgebra::{Isometry3, Vector3, Vector6};
+use nalgebra::{Isometry3, UnitQuaternion, Vector3, Vector6};
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use sensing::{OdomSample, Point, Scan};
@@ -118,6 +119,8 @@ pub struct Slam {
     last_map_update: Option<(f64, Isometry3<f64>)>,
     /// Gyroscope readings `(end of interval, rate in base_link)`, oldest first.
     gyro: VecDeque<(f64, Vector3<f64>)>,
+    /// The gyroscope's bias as estimated so far, rad/s (`base_link` axes).
+    gyro_bias: Vector3<f64>,
     /// Scans processed (the dynamic-point update runs on every `dynamic.every_n_scans`-th).
     scans: u64,
     /// Scan extent and match gate for the `"auto"` keys.
@@ -126,6 +129,18 @@ pub struct Slam {
 
 /// Odometry older than this before the newest scan is dropped, seconds.
 const ODOM_KEEP_S: f64 = 5.0;
+
+/// Gyroscope readings further apart than this do not make a rotation prior, seconds: a dropped
+/// stretch of IMU data would be read as standing still.
+const GYRO_MAX_GAP_S: f64 = 0.2;
+
+/// Share of one sweep's reading of the gyroscope's bias taken into the estimate: an average
+/// over ~100 sweeps (10 s at 10 Hz).
+const GYRO_BIAS_GAIN: f64 = 0.01;
+
+/// Largest gyroscope bias the estimate may reach, rad/s (a consumer MEMS part is within a few
+/// mrad/s; more is a wrong mount or a fault, not bias).
+const GYRO_BIAS_MAX_RPS: f64 = 0.02;
 
 impl Slam {
     /// A new SLAM session with an empty map.
@@ -149,6 +164,7 @@ impl Slam {
             map_from_odom: Isometry3::identity(),
             last_map_update: None,
             gyro: VecDeque::new(),
+            gyro_bias: Vector3::zeros(),
             scans: 0,
             adaptive: Adaptive::default(),
         }
@@ -174,21 +190,67 @@ impl Slam {
         }
     }
 
-    /// The mean body rate over `[t0, t1]` in the lidar frame, from the readings whose
-    /// intervals end inside it (and the first one after it, which covers its end); `None`
-    /// without a reading newer than `t0`.
-    fn gyro_rate_lidar(&self, t0: f64, t1: f64) -> Option<Vector3<f64>> {
-        let i = self.gyro.partition_point(|(t, _)| *t <= t0);
-        let mut sum = Vector3::zeros();
-        let mut n = 0.0;
-        for (t, w) in self.gyro.range(i..) {
-            sum += w;
-            n += 1.0;
+    /// The body's turn from `t0` to `t1` (`base(t0)<-base(t1)`), integrated over the gyroscope
+    /// readings (each the mean rate since the one before); `None` unless they cover the whole
+    /// span without a gap longer than `GYRO_MAX_GAP_S`.
+    fn gyro_turn_base(&self, t0: f64, t1: f64) -> Option<UnitQuaternion<f64>> {
+        if t1 <= t0 || self.gyro.front()?.0 > t0 || self.gyro.back()?.0 < t1 {
+            return None;
+        }
+        let mut q = UnitQuaternion::identity();
+        let i = self
+            .gyro
+            .partition_point(|(t, _)| *t <= t0)
+            .saturating_sub(1);
+        let mut prev = self.gyro[i].0;
+        for (t, w) in self.gyro.range(i + 1..) {
+            if t - prev > GYRO_MAX_GAP_S {
+                return None;
+            }
+            let span = t.min(t1) - prev.max(t0);
+            if span > 0.0 {
+                q *= UnitQuaternion::from_scaled_axis((w - self.gyro_bias) * span);
+            }
             if *t >= t1 {
                 break;
             }
+            prev = *t;
         }
-        (n > 0.0).then(|| self.base_from_lidar.rotation.inverse() * (sum / n))
+        Some(q)
+    }
+
+    /// Moves the gyroscope's bias estimate towards what the registered turn from `last` (at
+    /// `t_last`) to `now` (at `t_s`, both `map<-lidar`) says it is.
+    ///
+    /// Each pair is a noisy reading of the bias (registration's own rotation error over one
+    /// sweep interval is of its order), so the estimate is a slow average: `GYRO_BIAS_GAIN` per
+    /// sweep, bounded by `GYRO_BIAS_MAX_RPS`.
+    fn learn_gyro_bias(
+        &mut self,
+        t_last: f64,
+        last: &Isometry3<f64>,
+        t_s: f64,
+        now: &Isometry3<f64>,
+    ) {
+        let dt = t_s - t_last;
+        if !(dt > 1e-3 && dt <= GYRO_MAX_GAP_S * 5.0) {
+            return;
+        }
+        let Some(gyro) = self.gyro_turn_base(t_last, t_s) else {
+            return;
+        };
+        let to_base = self.base_from_lidar.inverse();
+        let registered = ((last * to_base).inverse() * (now * to_base)).rotation;
+        let rate_error = (registered.inverse() * gyro).scaled_axis() / dt;
+        self.gyro_bias += rate_error * GYRO_BIAS_GAIN;
+        self.gyro_bias = self
+            .gyro_bias
+            .map(|b| b.clamp(-GYRO_BIAS_MAX_RPS, GYRO_BIAS_MAX_RPS));
+    }
+
+    /// The gyroscope's bias as estimated from registration so far, rad/s (`base_link` axes).
+    pub fn gyro_bias_rps(&self) -> [f64; 3] {
+        self.gyro_bias.into()
     }
 
     /// True when the scan at `pose` / `t_s` should update the map: the first one, then once the
@@ -260,8 +322,34 @@ impl Slam {
         Some(pose.to_isometry3(0.0))
     }
 
-    /// Prior `map<-lidar` at `t_s` and where it came from.
+    /// Prior `map<-lidar` at `t_s` and where it came from: the motion model's position and
+    /// heading, with the roll and pitch the gyroscope turned the last pose to since the last
+    /// scan when its readings cover that span.
+    ///
+    /// Wheel odometry knows nothing of pitch and roll, and a constant velocity nothing of a
+    /// jolt: a robot whose front wheels climb a 5 cm curb pitches several degrees between two
+    /// sweeps. The heading stays the motion model's: a gyroscope's bias turns every prior the
+    /// same way, and what registration leaves of that adds up to a heading drift.
     fn prior(&self, t_s: f64) -> (Isometry3<f64>, PriorKind) {
+        let (prior, kind) = self.motion_prior(t_s);
+        let tilted = self.history.back().and_then(|(t_last, last)| {
+            let turn = self.gyro_turn_base(*t_last, t_s)?;
+            let base_last = last * self.base_from_lidar.inverse();
+            let base_prior = prior * self.base_from_lidar.inverse();
+            let (roll, pitch, _) = (base_last.rotation * turn).euler_angles();
+            let (_, _, heading) = base_prior.rotation.euler_angles();
+            Some(
+                Isometry3::from_parts(
+                    base_prior.translation,
+                    UnitQuaternion::from_euler_angles(roll, pitch, heading),
+                ) * self.base_from_lidar,
+            )
+        });
+        (tilted.unwrap_or(prior), kind)
+    }
+
+    /// Prior `map<-lidar` at `t_s` from odometry or a constant velocity, and which.
+    fn motion_prior(&self, t_s: f64) -> (Isometry3<f64>, PriorKind) {
         if let Some(odom_base) = self.odom_base_at(t_s) {
             if !self.history.is_empty() {
                 return (
@@ -311,45 +399,38 @@ impl Slam {
 
         // De-skew: express every return in the lidar frame at `stamp_s`.
         let swept = self.cfg.sensor.deskew && scan.points.iter().any(|p| p.t_s != 0.0);
+        // The translation during the sweep is the prior motion's (the gyroscope, when heard,
+        // gives the rotation: `GyroTrack`).
         let twist = if swept {
-            // The sweep's rotation from the gyroscope when there is one: wheel odometry knows
-            // nothing of pitch and roll, and a robot cresting a ramp pitches ~2 deg within one
-            // sweep, which registration would otherwise split into a 1 deg error of the pose.
+            self.twist_per_s(&prior, scan.stamp_s)
+        } else {
+            None
+        };
+        // Returns placed by the gyroscope's readings through the sweep when it has any newer
+        // than the stamp, by a constant twist otherwise.
+        let track = if swept {
             let span_s = scan
                 .points
                 .iter()
                 .map(|p| f64::from(p.t_s))
                 .fold(0.0, f64::max);
-            let gyro = self.gyro_rate_lidar(scan.stamp_s, scan.stamp_s + span_s);
-            match (self.twist_per_s(&prior, scan.stamp_s), gyro) {
-                (Some(mut xi), Some(w)) => {
-                    xi.fixed_rows_mut::<3>(0).copy_from(&w);
-                    Some(xi)
-                }
-                (None, Some(w)) => Some(Vector6::new(w.x, w.y, w.z, 0.0, 0.0, 0.0)),
-                (xi, None) => xi,
-            }
+            GyroTrack::new(
+                &self.gyro,
+                &self.gyro_bias,
+                &self.base_from_lidar.rotation,
+                scan.stamp_s,
+                span_s,
+            )
         } else {
             None
         };
-        let deskewed: Option<Vec<Point>> = twist.map(|xi| {
-            scan.points
-                .iter()
-                .map(|p| {
-                    let q = se3::exp_apply(
-                        &xi,
-                        f64::from(p.t_s),
-                        &Vector3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z)),
-                    );
-                    Point {
-                        x: q.x as f32,
-                        y: q.y as f32,
-                        z: q.z as f32,
-                        ..*p
-                    }
-                })
-                .collect()
-        });
+        let deskewed: Option<Vec<Point>> = match (track, twist) {
+            (Some(track), xi) => {
+                let v = xi.map_or_else(Vector3::zeros, |xi| xi.fixed_rows::<3>(3).into_owned());
+                Some(track.deskew(&scan.points, &v.cast::<f32>()))
+            }
+            (None, xi) => xi.map(|xi| deskew_constant(&scan.points, &xi)),
+        };
         let raw: &[Point] = deskewed.as_deref().unwrap_or(&scan.points);
 
         let res = self.adaptive.resolve(
@@ -398,6 +479,12 @@ impl Slam {
         {
             self.adaptive
                 .observe(&prior, &pose_map_lidar, previous, &self.cfg.adaptive);
+        }
+
+        if let (false, Some(_), Some((t_last, previous))) =
+            (failed, icp_res.as_ref(), self.history.back().copied())
+        {
+            self.learn_gyro_bias(t_last, &previous, scan.stamp_s, &pose_map_lidar);
         }
 
         // A failed scan must not write a misplaced copy of the world into the map.
@@ -505,26 +592,65 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_sweep_rate_is_the_mean_gyro_reading_in_the_lidar_frame() {
-        let mut cfg = Config::default();
-        // A lidar turned 90 deg about z: the body's x rate is the lidar's -y rate.
-        cfg.sensor.lidar_rpy_rad = [0.0, 0.0, std::f64::consts::FRAC_PI_2];
-        let mut s = Slam::new(cfg);
-        assert!(s.gyro_rate_lidar(0.0, 0.1).is_none());
-        for (t, wx) in [
-            (0.98, 9.0),
-            (1.02, 0.1),
-            (1.06, 0.3),
-            (1.10, 0.2),
-            (1.14, 9.0),
-        ] {
-            s.push_gyro(t, [wx, 0.0, 0.0]);
+    fn the_prior_turns_with_the_gyroscope_since_the_last_scan() {
+        let mut s = Slam::new(Config::default());
+        let blf = s.base_from_lidar;
+        // The base pitching at 0.5 rad/s (a curb under the front wheels) and turning at
+        // 0.3 rad/s, readings at 50 Hz.
+        for k in 0..=15 {
+            s.push_gyro(0.9 + 0.02 * f64::from(k), [0.0, 0.5, 0.3]);
         }
-        s.push_gyro(1.12, [5.0, 0.0, 0.0]); // out of order: ignored
-        s.push_gyro(1.2, [f64::NAN, 0.0, 0.0]); // not finite: ignored
-        let w = s.gyro_rate_lidar(1.0, 1.1).unwrap();
-        assert!((w - Vector3::new(0.0, -0.2, 0.0)).norm() < 1e-9, "{w}");
-        // Nothing newer than the sweep's start: no rate.
-        assert!(s.gyro_rate_lidar(1.14, 1.24).is_none());
+        s.history.push_back((1.0, blf));
+        let (prior, kind) = s.prior(1.1);
+        assert_eq!(kind, PriorKind::ConstantVelocity);
+        let base = prior * blf.inverse();
+        // The pitch is the gyroscope's, the heading the motion model's (still).
+        let (roll, pitch, yaw) = base.rotation.euler_angles();
+        assert!(
+            roll.abs() < 1e-3 && (pitch - 0.05).abs() < 1e-3,
+            "{roll} {pitch}"
+        );
+        assert!(yaw.abs() < 1e-12, "{yaw}");
+        assert!(base.translation.vector.norm() < 1e-9, "{base}");
+        // Past the newest reading the turn is unknown: the motion model's prior as it was.
+        let (later, _) = s.prior(1.3);
+        assert!((later * blf.inverse()).rotation.angle() < 1e-12);
+    }
+
+    #[test]
+    fn a_gap_in_the_gyroscope_readings_makes_no_turn() {
+        let mut s = Slam::new(Config::default());
+        for t in [0.9, 0.92, 0.94, 1.3, 1.32] {
+            s.push_gyro(t, [0.0, 0.5, 0.0]);
+        }
+        assert!(s.gyro_turn_base(0.95, 1.31).is_none());
+        let q = s.gyro_turn_base(0.91, 0.93).unwrap();
+        assert!((q.angle() - 0.01).abs() < 1e-12, "{}", q.angle());
+    }
+
+    #[test]
+    fn the_gyro_bias_is_learnt_from_registered_turns() {
+        let mut s = Slam::new(Config::default());
+        let blf = s.base_from_lidar;
+        let bias = Vector3::new(0.003, -0.002, 0.004);
+        let turn = Vector3::new(0.0, 0.0, 0.2);
+        let pose = |t: f64| {
+            Isometry3::from_parts(
+                nalgebra::Translation3::identity(),
+                UnitQuaternion::from_scaled_axis(turn * t),
+            ) * blf
+        };
+        // Turning at 0.2 rad/s; the gyroscope reads that plus its bias, at 50 Hz.
+        let mut t_gyro = 0.0;
+        for k in 0..1000 {
+            let t = 0.1 * f64::from(k + 1);
+            while t_gyro < t + 0.11 {
+                t_gyro += 0.02;
+                s.push_gyro(t_gyro, (turn + bias).into());
+            }
+            s.learn_gyro_bias(t, &pose(t), t + 0.1, &pose(t + 0.1));
+        }
+        let learnt = Vector3::from(s.gyro_bias_rps());
+        assert!((learnt - bias).norm() < 0.1 * bias.norm(), "{learnt}");
     }
 }
