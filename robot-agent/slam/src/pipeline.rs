@@ -397,39 +397,33 @@ impl Slam {
         self.scans += 1;
         let (prior, prior_kind) = self.prior(scan.stamp_s);
 
-        // De-skew: express every return in the lidar frame at `stamp_s`.
+        // De-skew: express every return in the lidar frame at `stamp_s`. The translation during
+        // the sweep is the prior motion's; the rotation is the gyroscope's readings through the
+        // sweep when it has any newer than the stamp, the prior motion's otherwise.
         let swept = self.cfg.sensor.deskew && scan.points.iter().any(|p| p.t_s != 0.0);
-        // The translation during the sweep is the prior motion's (the gyroscope, when heard,
-        // gives the rotation: `GyroTrack`).
-        let twist = if swept {
-            self.twist_per_s(&prior, scan.stamp_s)
-        } else {
-            None
-        };
-        // Returns placed by the gyroscope's readings through the sweep when it has any newer
-        // than the stamp, by a constant twist otherwise.
-        let track = if swept {
+        let deskewed: Option<Vec<Point>> = if swept {
+            let twist = self.twist_per_s(&prior, scan.stamp_s);
             let span_s = scan
                 .points
                 .iter()
                 .map(|p| f64::from(p.t_s))
                 .fold(0.0, f64::max);
-            GyroTrack::new(
+            match GyroTrack::new(
                 &self.gyro,
                 &self.gyro_bias,
                 &self.base_from_lidar.rotation,
                 scan.stamp_s,
                 span_s,
-            )
+            ) {
+                Some(track) => {
+                    let v =
+                        twist.map_or_else(Vector3::zeros, |xi| xi.fixed_rows::<3>(3).into_owned());
+                    Some(track.deskew(&scan.points, &v.cast::<f32>()))
+                }
+                None => twist.map(|xi| deskew_constant(&scan.points, &xi)),
+            }
         } else {
             None
-        };
-        let deskewed: Option<Vec<Point>> = match (track, twist) {
-            (Some(track), xi) => {
-                let v = xi.map_or_else(Vector3::zeros, |xi| xi.fixed_rows::<3>(3).into_owned());
-                Some(track.deskew(&scan.points, &v.cast::<f32>()))
-            }
-            (None, xi) => xi.map(|xi| deskew_constant(&scan.points, &xi)),
         };
         let raw: &[Point] = deskewed.as_deref().unwrap_or(&scan.points);
 
@@ -474,16 +468,11 @@ impl Slam {
         }
         let pose_map_lidar = icp_res.as_ref().map_or(prior, |r| r.pose);
         let failed = icp_res.as_ref().is_some_and(|r| !r.status.is_ok());
-        if let (false, Some(_), Some((_, previous))) =
-            (failed, icp_res.as_ref(), self.history.back())
-        {
-            self.adaptive
-                .observe(&prior, &pose_map_lidar, previous, &self.cfg.adaptive);
-        }
-
         if let (false, Some(_), Some((t_last, previous))) =
             (failed, icp_res.as_ref(), self.history.back().copied())
         {
+            self.adaptive
+                .observe(&prior, &pose_map_lidar, &previous, &self.cfg.adaptive);
             self.learn_gyro_bias(t_last, &previous, scan.stamp_s, &pose_map_lidar);
         }
 
@@ -600,6 +589,9 @@ mod tests {
         for k in 0..=15 {
             s.push_gyro(0.9 + 0.02 * f64::from(k), [0.0, 0.5, 0.3]);
         }
+        s.push_gyro(1.12, [0.0, 5.0, 0.0]); // out of order: ignored
+        s.push_gyro(1.4, [0.0, f64::NAN, 0.0]); // not finite: ignored
+        assert_eq!(s.gyro.len(), 16);
         s.history.push_back((1.0, blf));
         let (prior, kind) = s.prior(1.1);
         assert_eq!(kind, PriorKind::ConstantVelocity);
@@ -612,7 +604,8 @@ mod tests {
         );
         assert!(yaw.abs() < 1e-12, "{yaw}");
         assert!(base.translation.vector.norm() < 1e-9, "{base}");
-        // Past the newest reading the turn is unknown: the motion model's prior as it was.
+        // Past the newest reading (1.2 s: the refused one at 1.4 s does not count) the turn is
+        // unknown: the motion model's prior as it was.
         let (later, _) = s.prior(1.3);
         assert!((later * blf.inverse()).rotation.angle() < 1e-12);
     }

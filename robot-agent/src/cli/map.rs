@@ -440,7 +440,7 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
         if let Some(s) = &r.obstacle_shifts {
             eprintln!(
                 "against the same sweeps at their true poses: {} compared, shift mean {:.3} m median {:.3} m max {:.3} m; raised cells: {} compared, mean {:.3} m median {:.3} m max {:.3} m",
-                s.compared, s.mean_shift_m, s.median_shift_m, s.max_shift_m, s.body.compared,
+                s.all.compared, s.all.mean_shift_m, s.all.median_shift_m, s.all.max_shift_m, s.body.compared,
                 s.body.mean_shift_m, s.body.median_shift_m, s.body.max_shift_m
             );
         }

@@ -210,24 +210,17 @@ pub fn score(mapper: &Mapper, world: &sim::World) -> ObstaclePositions {
 /// How far each pole or trunk lies from where a reference map of the same sweeps puts it.
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
 pub struct ObstacleShifts {
-    /// Objects found in both maps (all obstacle cells).
-    pub compared: usize,
-    /// Mean distance between the two maps' centroids of an object's cells, metres.
-    pub mean_shift_m: f64,
-    /// Median of those distances, metres.
-    pub median_shift_m: f64,
-    /// Largest of those distances, metres.
-    pub max_shift_m: f64,
-    /// Per compared object: x, y (truth, metres), shift (metres).
-    pub per_object: Vec<(f64, f64, f64)>,
+    /// Over all obstacle cells.
+    #[serde(flatten)]
+    pub all: Shifts,
     /// The same over the raised cells only.
-    pub body: BodyShifts,
+    pub body: Shifts,
 }
 
-/// [`ObstacleShifts`] over each object's raised cells.
+/// Distances between two maps' centroids of the same objects' cells.
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
-pub struct BodyShifts {
-    /// Objects with raised cells in both maps.
+pub struct Shifts {
+    /// Objects with cells in both maps.
     pub compared: usize,
     /// Mean shift, metres.
     pub mean_shift_m: f64,
@@ -239,6 +232,30 @@ pub struct BodyShifts {
     pub per_object: Vec<(f64, f64, f64)>,
 }
 
+impl Shifts {
+    /// The shifts of the objects both centroids are given for (`centroids` yields the true
+    /// centre and the two maps' centroids).
+    fn of(
+        centroids: impl Iterator<Item = ((f64, f64), Option<(f64, f64)>, Option<(f64, f64)>)>,
+    ) -> Self {
+        let per_object: Vec<(f64, f64, f64)> = centroids
+            .filter_map(|((ox, oy), p, q)| {
+                let (p, q) = (p?, q?);
+                Some((ox, oy, (p.0 - q.0).hypot(p.1 - q.1)))
+            })
+            .collect();
+        let mut d: Vec<f64> = per_object.iter().map(|o| o.2).collect();
+        let (mean_shift_m, median_shift_m, max_shift_m) = summary(&mut d);
+        Self {
+            compared: per_object.len(),
+            mean_shift_m,
+            median_shift_m,
+            max_shift_m,
+            per_object,
+        }
+    }
+}
+
 /// Per pole and trunk, the distance between where `mapper` and `reference` put its cells.
 ///
 /// With `reference` the same sweeps mapped at the true poses (`map eval --truth-twin`), the
@@ -248,31 +265,13 @@ pub struct BodyShifts {
 pub fn shifts(mapper: &Mapper, reference: &Mapper, world: &sim::World) -> ObstacleShifts {
     let ours = object_cells(mapper, world);
     let theirs = object_cells(reference, world);
-    let mut out = ObstacleShifts::default();
-    let mut all = Vec::new();
-    let mut body = Vec::new();
-    for (a, b) in ours.iter().zip(&theirs) {
-        let (ox, oy) = a.centre;
-        if let (Some(p), Some(q)) = (a.centroid(), b.centroid()) {
-            let d = (p.0 - q.0).hypot(p.1 - q.1);
-            all.push(d);
-            out.per_object.push((ox, oy, d));
-        }
-        if let (Some(p), Some(q)) = (a.raised_centroid(), b.raised_centroid()) {
-            let d = (p.0 - q.0).hypot(p.1 - q.1);
-            body.push(d);
-            out.body.per_object.push((ox, oy, d));
-        }
+    let pairs = || ours.iter().zip(&theirs);
+    ObstacleShifts {
+        all: Shifts::of(pairs().map(|(a, b)| (a.centre, a.centroid(), b.centroid()))),
+        body: Shifts::of(
+            pairs().map(|(a, b)| (a.centre, a.raised_centroid(), b.raised_centroid())),
+        ),
     }
-    out.compared = all.len();
-    (out.mean_shift_m, out.median_shift_m, out.max_shift_m) = summary(&mut all);
-    out.body.compared = body.len();
-    (
-        out.body.mean_shift_m,
-        out.body.median_shift_m,
-        out.body.max_shift_m,
-    ) = summary(&mut body);
-    out
 }
 
 #[cfg(test)]
@@ -376,13 +375,13 @@ mod tests {
         let world = truth(6.0, false);
         let right = mapped(false);
         let same = shifts(&right, &right, &world);
-        assert_eq!((same.compared, same.body.compared), (1, 1), "{same:?}");
-        assert_eq!((same.max_shift_m, same.body.max_shift_m), (0.0, 0.0));
+        assert_eq!((same.all.compared, same.body.compared), (1, 1), "{same:?}");
+        assert_eq!((same.all.max_shift_m, same.body.max_shift_m), (0.0, 0.0));
         // Every sweep 0.4 m (two cells) east: the trunk's cells move with them, and the shift
         // says so while the centroid's distance from the centre mixes it with the view.
         let off = mapped_off(false, 0.4);
         let s = shifts(&off, &right, &world);
         assert!((s.body.max_shift_m - 0.4).abs() <= 0.1, "{s:?}");
-        assert!((s.max_shift_m - 0.4).abs() <= 0.1, "{s:?}");
+        assert!((s.all.max_shift_m - 0.4).abs() <= 0.1, "{s:?}");
     }
 }

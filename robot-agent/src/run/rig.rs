@@ -260,6 +260,8 @@ impl Rig {
             let t0 = Instant::now();
             match self.scan_mode {
                 ScanMode::Localised => {
+                    let stamp_s = scan.stamp_s;
+                    let twin_sweep = self.truth_twin.is_some().then(|| self.truth_sweep(&scan));
                     let input = Input::Scan(scan);
                     if let Some(r) = self.recorder.as_mut() {
                         r.input(&input);
@@ -272,16 +274,11 @@ impl Rig {
                         }
                         _ => crate::runtime::deliver(&mut self.agent, &input).slam_failed,
                     };
-                    if self.truth_twin.is_some() {
-                        let Input::Scan(scan) = &input else {
-                            unreachable!("the input was made from the scan")
-                        };
-                        let (points, origin, robot) = self.truth_sweep(scan);
-                        if let Some(twin) = self.truth_twin.as_mut() {
-                            if let Err(e) = twin.update_sweep(points, origin, &robot, scan.stamp_s)
-                            {
-                                tracing::warn!("truth twin at {:.2} s: {e}", scan.stamp_s);
-                            }
+                    if let (Some(twin), Some((points, origin, robot))) =
+                        (self.truth_twin.as_mut(), twin_sweep)
+                    {
+                        if let Err(e) = twin.update_sweep(points, origin, &robot, stamp_s) {
+                            tracing::warn!("truth twin at {stamp_s:.2} s: {e}");
                         }
                     }
                 }
