@@ -84,6 +84,11 @@ struct EvalArgs {
     /// of the distance to the true centre. Costs a second map update per sweep.
     #[arg(long, conflicts_with = "use_truth_poses")]
     truth_twin: bool,
+    /// After the drive, stand still for at most this long while a map rebuild after a pose
+    /// graph correction is under way, so the map scored is the corrected one, seconds (0: score
+    /// the map as the drive ends).
+    #[arg(long, value_name = "S", default_value_t = 60.0)]
+    settle_max: f64,
 }
 
 #[derive(Debug, clap::Args)]
@@ -402,6 +407,7 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
     }
     opts.rebuild_check = a.rebuild_check;
     opts.truth_twin = a.truth_twin;
+    opts.settle_max_s = a.settle_max;
     if let Some(dir) = &a.tiles_out {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         opts.tiles_out = Some(dir.clone());

@@ -10,9 +10,7 @@
 //! like any other frame correction.
 
 use nalgebra::{Isometry3, Point3, Vector3};
-use rand::SeedableRng;
 use sensing::Point;
-use slam::config::FilterConfig;
 use slam::graph::{GraphConfig, KeyframeSelector, LoopRejection, PoseGraph};
 use std::sync::Arc;
 
@@ -47,6 +45,8 @@ pub struct GraphStats {
     pub loop_icp_failed: usize,
     /// Candidates whose ICP converged with too few inliers or too loose a fit.
     pub loop_poor_fit: usize,
+    /// Candidates that fit but would move the robot further than the graph can have drifted.
+    pub loop_inconsistent: usize,
 }
 
 /// The graph and what feeds it.
@@ -193,6 +193,15 @@ impl GraphLocaliser {
                 );
                 self.stats.loop_poor_fit += 1;
             }
+            Err(LoopRejection::Inconsistent {
+                correction_m,
+                allowed_m,
+            }) => {
+                tracing::debug!(
+                    "pose graph: loop candidate at keyframe {kf}: would move it {correction_m:.2} m, the graph can have drifted {allowed_m:.2} m"
+                );
+                self.stats.loop_inconsistent += 1;
+            }
             Err(LoopRejection::Degenerate { constraint }) => {
                 // Counted with the poor fits: it fits, but not firmly enough to be a loop.
                 tracing::debug!(
@@ -229,17 +238,11 @@ fn keyframe_cloud(
     if thinned.len() < 100 {
         return None;
     }
-    let fcfg = FilterConfig {
-        max_density_per_m3: 0.0,
-        normal_max_dist_m: 3.0 * cfg.keyframe_voxel_m,
-        ..FilterConfig::default()
-    };
     let sensor = base_from_lidar.translation.vector.cast::<f32>();
-    Some(Arc::new(slam::filters::normals_and_density(
+    Some(Arc::new(slam::graph::keyframe_normals(
         thinned,
         [sensor.x, sensor.y, sensor.z],
-        &fcfg,
-        &mut rand::rngs::StdRng::seed_from_u64(1),
+        cfg.keyframe_voxel_m,
     )))
 }
 

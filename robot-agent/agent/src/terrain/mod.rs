@@ -312,6 +312,11 @@ impl TerrainMap {
         Ok(tiles)
     }
 
+    /// True while a rebuilt map is being made and has not replaced the live one yet.
+    pub fn rebuild_running(&self) -> bool {
+        self.shadow.is_some()
+    }
+
     /// Rebuilds after pose graph corrections (swapped in), and the sweeps kept for them.
     pub fn rebuild_counts(&self) -> (u64, usize) {
         (self.rebuilds, self.kept.as_ref().map_or(0, |k| k.len()))

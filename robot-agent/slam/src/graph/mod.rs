@@ -15,14 +15,15 @@ pub mod factors;
 pub mod keyframes;
 pub mod solve;
 
-use crate::config::IcpConfig;
-use crate::filters::OrientedCloud;
+use crate::config::{FilterConfig, IcpConfig};
+use crate::filters::{normals_and_density, voxel_downsample, OrientedCloud};
 use crate::icp::{self, IcpStatus};
 use crate::index::KdIndex;
 use crate::place::{PlaceDb, ScanContext};
 use factors::{information, BetweenKind, Factor};
 pub use keyframes::{Keyframe, KeyframeSelector};
 use nalgebra::{Isometry3, Matrix3, UnitQuaternion, Vector3};
+use rand::{rngs::StdRng, SeedableRng};
 use serde::Deserialize;
 pub use solve::{SolveOptions, SolveReport};
 use std::sync::Arc;
@@ -71,6 +72,11 @@ pub struct GraphConfig {
     pub loop_icp_max_match_dist_m: f64,
     /// Verification ICP: the two keyframes may be at most this far apart, metres.
     pub loop_max_offset_m: f64,
+    /// The candidate's cloud is verified against together with this many keyframes on each
+    /// side of it (their clouds carried into its frame by the graph's poses, thinned to
+    /// `keyframe_voxel_m`): one sweep from another spot hits other ground rings and other
+    /// faces of the same objects, a local submap holds them (0: the candidate's cloud alone).
+    pub loop_submap_keyframes: usize,
     /// A loop is accepted when the ICP explains at least this share of the reading...
     pub loop_min_inlier_ratio: f64,
     /// ...with a weighted RMS point-to-plane residual at most this, metres...
@@ -79,6 +85,14 @@ pub struct GraphConfig {
     /// mean `n n^T` over the paired points' target normals is at least this (0..1/3; near 0
     /// when some direction is free, as along a corridor's walls). See [`translation_constraint`].
     pub loop_min_constraint: f64,
+    /// ...and when the correction it implies is one the graph could have drifted into: the
+    /// measured `from<-to` may differ from the graph's own by at most `loop_min_drift_m` plus
+    /// this share of the distance driven from each end to its nearest keyframe with a GNSS
+    /// factor (the first keyframe counts), 0..1. A place that merely looks the same (a lane of
+    /// poles and walls) is tens of metres from where the graph knows the robot to be.
+    pub loop_max_drift_per_m: f64,
+    /// The smallest correction bound of that test, metres.
+    pub loop_min_drift_m: f64,
     /// Loop factor translation sigma, metres.
     pub loop_sigma_trans_m: f64,
     /// Loop factor rotation sigma, radians.
@@ -130,9 +144,12 @@ impl Default for GraphConfig {
             loop_search_radius_m: 5.0,
             loop_icp_max_match_dist_m: 3.0,
             loop_max_offset_m: 8.0,
+            loop_submap_keyframes: 5,
             loop_min_inlier_ratio: 0.5,
             loop_max_rms_m: 0.15,
             loop_min_constraint: 0.01,
+            loop_max_drift_per_m: 0.05,
+            loop_min_drift_m: 1.0,
             loop_sigma_trans_m: 0.1,
             loop_sigma_rot_rad: 0.01,
             loop_cauchy_sigmas: 3.0,
@@ -169,6 +186,14 @@ pub enum LoopRejection {
     Degenerate {
         /// The weakest direction's share of the paired normals, 0..1/3.
         constraint: f64,
+    },
+    /// It fits, but it would move the robot further than the graph can have drifted since
+    /// GNSS last held it (`loop_max_drift_per_m`): another place that looks the same.
+    Inconsistent {
+        /// How far the loop would move `to` against `from` from where the graph has it, metres.
+        correction_m: f64,
+        /// The most the graph can have drifted there, metres.
+        allowed_m: f64,
     },
 }
 
@@ -281,6 +306,19 @@ pub fn translation_constraint(
         .max(0.0)
 }
 
+/// A keyframe's (or a submap's) cloud with normals: `points` thinned to `voxel_m`, in its own
+/// frame; PCA over the neighbours within three voxels, oriented toward `sensor_m`. Every point
+/// is kept; one whose neighbourhood is no surface gets a zero normal (untrusted, §3.2).
+pub fn keyframe_normals(points: Vec<[f32; 3]>, sensor_m: [f32; 3], voxel_m: f64) -> OrientedCloud {
+    let cfg = FilterConfig {
+        max_density_per_m3: 0.0,
+        normal_max_dist_m: 3.0 * voxel_m,
+        ..FilterConfig::default()
+    };
+    // No density thinning, so the generator is never drawn from.
+    normals_and_density(points, sensor_m, &cfg, &mut StdRng::seed_from_u64(1))
+}
+
 /// The graph: keyframes, factors and the place database.
 #[derive(Debug)]
 pub struct PoseGraph {
@@ -288,6 +326,13 @@ pub struct PoseGraph {
     keyframes: Vec<Keyframe>,
     factors: Vec<Factor>,
     places: PlaceDb,
+    /// Per keyframe: odometry distance driven from the first keyframe, metres.
+    travel_m: Vec<f64>,
+    /// Per keyframe: held by an absolute factor (GNSS, or the first keyframe's prior).
+    anchored: Vec<bool>,
+    /// The last submap built: (centre keyframe, keyframes merged, the cloud). The descriptor
+    /// proposes the same candidate again and again; an optimisation moves the poses and clears it.
+    submap_cache: Option<(usize, Vec<usize>, Arc<OrientedCloud>)>,
 }
 
 impl PoseGraph {
@@ -298,6 +343,9 @@ impl PoseGraph {
             keyframes: Vec::new(),
             factors: Vec::new(),
             places: PlaceDb::default(),
+            travel_m: Vec::new(),
+            anchored: Vec::new(),
+            submap_cache: None,
         }
     }
 
@@ -326,6 +374,15 @@ impl PoseGraph {
         cloud: Option<Arc<OrientedCloud>>,
     ) -> usize {
         let idx = self.keyframes.len();
+        let travel = self.keyframes.last().map_or(0.0, |prev| {
+            self.travel_m[idx - 1]
+                + (prev.odom_pose.inverse() * odom_pose)
+                    .translation
+                    .vector
+                    .norm()
+        });
+        self.travel_m.push(travel);
+        self.anchored.push(idx == 0);
         let pose = match self.keyframes.last() {
             None => {
                 self.factors.push(Factor::Prior {
@@ -385,6 +442,7 @@ impl PoseGraph {
         let info =
             Matrix3::from_diagonal(&Vector3::new(1.0 / (h * h), 1.0 / (h * h), 1.0 / (v * v)));
         self.factors.push(Factor::Position { kf, enu_m, info });
+        self.anchored[kf] = true;
     }
 
     /// Adds a loop factor `from<-to` (robust kernel), e.g. from another recogniser.
@@ -475,6 +533,78 @@ impl PoseGraph {
             .map(|(j, _)| j)
     }
 
+    /// Odometry distance from keyframe `kf` to the nearest keyframe (before or after it) held by
+    /// an absolute factor: how far the graph's pose there can have drifted from the truth.
+    fn travel_to_anchor_m(&self, kf: usize) -> f64 {
+        let here = self.travel_m[kf];
+        let before = self.anchored[..=kf]
+            .iter()
+            .rposition(|a| *a)
+            .map(|j| here - self.travel_m[j]);
+        let after = self.anchored[kf..]
+            .iter()
+            .position(|a| *a)
+            .map(|j| self.travel_m[kf + j] - here);
+        before
+            .into_iter()
+            .chain(after)
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// Keyframe `centre`'s cloud with those of up to `loop_submap_keyframes` keyframes on each
+    /// side stamped before `before_s` (never the recent trajectory the loop would close onto),
+    /// in `centre`'s frame by the graph's relative poses, thinned to `keyframe_voxel_m` with
+    /// `centre`'s own points first, and its normals fitted again over the merged points: one
+    /// sweep's ground rings are too far apart for a normal, the rings of several sweeps make a
+    /// surface. `None` when `centre` has no cloud.
+    fn submap(&mut self, centre: usize, before_s: f64) -> Option<Arc<OrientedCloud>> {
+        let own = self.keyframes.get(centre)?.cloud.clone()?;
+        let n = self.cfg.loop_submap_keyframes;
+        if n == 0 {
+            return Some(own);
+        }
+        let last = (centre + n).min(self.keyframes.len() - 1);
+        // Nearest neighbours first, so where thinning has to choose, the nearer sweep's point stays.
+        let members: Vec<usize> = (1..=n)
+            .flat_map(|d| {
+                [
+                    centre.checked_sub(d),
+                    Some(centre + d).filter(|j| *j <= last),
+                ]
+            })
+            .flatten()
+            .filter(|&j| {
+                let k = &self.keyframes[j];
+                k.stamp_s < before_s && k.cloud.is_some()
+            })
+            .collect();
+        if let Some((c, m, cloud)) = &self.submap_cache {
+            if *c == centre && *m == members {
+                return Some(cloud.clone());
+            }
+        }
+        let centre_from_world = self.keyframes[centre].pose.inverse();
+        let mut merged = own.points.clone();
+        for &j in &members {
+            let k = &self.keyframes[j];
+            if let Some(c) = &k.cloud {
+                let t = (centre_from_world * k.pose).cast::<f32>();
+                merged.extend(c.points.iter().map(|p| {
+                    let q = t * nalgebra::Point3::from(*p);
+                    [q.x, q.y, q.z]
+                }));
+            }
+        }
+        let thinned = voxel_downsample(&merged, self.cfg.keyframe_voxel_m as f32);
+        let cloud = Arc::new(keyframe_normals(
+            thinned,
+            [0.0; 3],
+            self.cfg.keyframe_voxel_m,
+        ));
+        self.submap_cache = Some((centre, members, cloud.clone()));
+        Some(cloud)
+    }
+
     /// Verifies `from` (older) against `to` from `init` = `from<-to` and adds the loop factor.
     fn verify_with(
         &mut self,
@@ -484,10 +614,32 @@ impl PoseGraph {
         init: &Isometry3<f64>,
         descriptor_distance: f64,
     ) -> Result<LoopClosure, LoopRejection> {
-        let Some(target) = self.keyframes[from].cloud.clone() else {
+        let predicted = self.keyframes[from].pose.inverse() * self.keyframes[to].pose;
+        let allowed_m = self.cfg.loop_min_drift_m
+            + self.cfg.loop_max_drift_per_m
+                * (self.travel_to_anchor_m(from) + self.travel_to_anchor_m(to));
+        // Each of the ICP's two passes moves at most `loop_max_offset_m` from where it starts,
+        // so a candidate further than that from the graph's place is refused without the ICP
+        // (most of the descriptor's look-alikes: the verification is the costly part).
+        let reach_m = (predicted.translation.vector - init.translation.vector).norm();
+        if reach_m - 2.0 * self.cfg.loop_max_offset_m > allowed_m {
+            return Err(LoopRejection::Inconsistent {
+                correction_m: reach_m - 2.0 * self.cfg.loop_max_offset_m,
+                allowed_m,
+            });
+        }
+        let before_s = self.keyframes[to].stamp_s - self.cfg.loop_exclude_recent_s;
+        let Some(target) = self.submap(from, before_s) else {
             return Err(LoopRejection::NoDescriptor);
         };
         let (measured, inlier_ratio, rms_m) = verify_loop(cloud, &target, init, &self.cfg)?;
+        let correction_m = (measured.translation.vector - predicted.translation.vector).norm();
+        if correction_m > allowed_m {
+            return Err(LoopRejection::Inconsistent {
+                correction_m,
+                allowed_m,
+            });
+        }
         self.add_loop(from, to, measured);
         Ok(LoopClosure {
             from,
@@ -514,6 +666,7 @@ impl PoseGraph {
         for (k, p) in self.keyframes.iter_mut().zip(poses) {
             k.pose = p;
         }
+        self.submap_cache = None;
         report
     }
 

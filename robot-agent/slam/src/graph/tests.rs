@@ -380,3 +380,148 @@ fn a_revisit_the_descriptor_misses_is_found_near_the_graphs_own_pose() {
         "end error {before} -> {after}"
     );
 }
+
+/// Height of the rolling ground of [`ring_scan`] at world `(x, y)`, metres.
+fn ground_z(x: f32, y: f32) -> f32 {
+    0.4 * (x / 6.0).sin() * (y / 9.0).cos()
+}
+
+/// What a 16-beam spinning lidar at `pose` (world<-sensor, 1.5 m above the ground) sees of
+/// `world` within `range_m`: the objects' points as [`scan`] keeps them, and the rolling ground
+/// ([`ground_z`]) only on the eight rings its downward beams (-15..-1 deg, 2 deg apart) draw,
+/// one point every 0.5 deg. Sweeps from places a metre apart share no ground ring, and one ring
+/// alone is a curve, not a surface.
+fn ring_scan(world: &[[f32; 3]], pose: &Isometry3<f64>, range_m: f32, seed: u64) -> Vec<[f32; 3]> {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let inv = pose.inverse().cast::<f32>();
+    let fwd = pose.cast::<f32>();
+    let mut out: Vec<[f32; 3]> = world
+        .iter()
+        .map(|p| inv * nalgebra::Point3::from(*p))
+        .filter(|q| q.coords.xy().norm() < range_m && rng.random_bool(0.8))
+        .map(|q| [q.x, q.y, q.z])
+        .collect();
+    let height = pose.translation.vector.z as f32;
+    for ring in 0..8 {
+        let r = height / (15.0f32 - 2.0 * ring as f32).to_radians().tan();
+        if r > range_m {
+            continue;
+        }
+        for k in 0..720 {
+            let a = (k as f32 * 0.5).to_radians();
+            let w = fwd * nalgebra::Point3::new(r * a.cos(), r * a.sin(), -height);
+            let g = inv * nalgebra::Point3::new(w.x, w.y, ground_z(w.x, w.y));
+            out.push([g.x, g.y, g.z + rng.random_range(-0.01..0.01)]);
+        }
+    }
+    out
+}
+
+#[test]
+fn a_revisit_between_the_old_sweeps_is_verified_against_their_submap() {
+    // A straight pass along y = 0, a keyframe every 2 m; much later the robot comes back
+    // between two of them, 0.7 m to the side and turned. Against the nearest old keyframe alone
+    // its ground rings find no partner (the rings are where each sweep's beams hit the ground),
+    // so the ICP explains too little of the sweep; against that keyframe's neighbours in its
+    // frame it is verified, and measured right.
+    let w = world(7, 200.0, 25);
+    // Thinned as the agent's keyframe clouds are.
+    let cloud = |p: &Isometry3<f64>, seed: u64| {
+        oriented(crate::filters::voxel_downsample(
+            &ring_scan(&w, p, 40.0, seed),
+            0.3,
+        ))
+    };
+    let truth: Vec<Isometry3<f64>> = (0..15).map(|i| pose(2.0 * i as f64, 0.0, 0.0)).collect();
+    let revisit = pose(13.0, 0.7, 0.6);
+    let run = |submap: usize| {
+        let cfg = GraphConfig {
+            loop_exclude_recent_s: 10.0,
+            place_max_distance: 0.0,
+            loop_submap_keyframes: submap,
+            ..GraphConfig::default()
+        };
+        let mut g = PoseGraph::new(cfg);
+        for (i, t) in truth.iter().enumerate() {
+            g.add_keyframe(i as f64, *t, Some(cloud(t, 30 + i as u64)));
+        }
+        let kf = g.add_keyframe(100.0, revisit, Some(cloud(&revisit, 99)));
+        g.detect_loop(kf)
+    };
+    let alone = run(0);
+    println!("against the nearest keyframe alone: {alone:?}");
+    assert!(
+        matches!(alone, Err(LoopRejection::PoorFit { .. })),
+        "{alone:?}"
+    );
+    let c = run(5).expect("verified against the submap");
+    let d = (truth[c.from].inverse() * revisit).inverse() * c.measured;
+    println!(
+        "against the submap: keyframe {} inliers {:.2}, rms {:.3} m, error {:.3} m {:.4} rad",
+        c.from,
+        c.inlier_ratio,
+        c.rms_m,
+        se3::translation_norm(&d),
+        se3::rotation_angle(&d)
+    );
+    assert!(se3::translation_norm(&d) < 0.05 && se3::rotation_angle(&d) < 0.005);
+}
+
+#[test]
+fn a_look_alike_place_further_than_the_graph_can_have_drifted_is_no_loop() {
+    // A world that repeats every 40 m along x: at x = 40 the robot sees what it saw at x = 0,
+    // and the descriptor and the ICP agree that it is the same place. RTK held every keyframe
+    // on the way, so the graph cannot be 40 m off: the loop is refused.
+    let tile = world(9, 40.0, 10);
+    let w: Vec<[f32; 3]> = (-3..=4)
+        .flat_map(|k| {
+            tile.iter()
+                .map(move |p| [p[0] + 40.0 * k as f32, p[1], p[2]])
+        })
+        .collect();
+    let truth: Vec<Isometry3<f64>> = (0..=20).map(|i| pose(2.0 * i as f64, 0.0, 0.0)).collect();
+    let run = |cfg: GraphConfig, gnss: bool| {
+        let mut g = PoseGraph::new(GraphConfig {
+            loop_exclude_recent_s: 10.0,
+            ..cfg
+        });
+        let mut last = Err(LoopRejection::NoDescriptor);
+        for (i, t) in truth.iter().enumerate() {
+            let kf = g.add_keyframe(
+                i as f64,
+                *t,
+                Some(oriented(scan(&w, t, 40.0, 50 + i as u64))),
+            );
+            if gnss {
+                g.add_gnss(kf, t.translation.vector, 0.02, 0.04);
+            }
+            last = g.detect_loop(kf);
+        }
+        last
+    };
+    let look_alike = run(
+        GraphConfig {
+            loop_min_drift_m: 1e9,
+            ..GraphConfig::default()
+        },
+        true,
+    )
+    .expect("without the drift test the look-alike passes the verification");
+    assert_eq!((look_alike.from, look_alike.to), (0, 20), "{look_alike:?}");
+    for gnss in [true, false] {
+        let got = run(GraphConfig::default(), gnss);
+        println!("RTK on every keyframe {gnss}: {got:?}");
+        let Err(LoopRejection::Inconsistent {
+            correction_m,
+            allowed_m,
+        }) = got
+        else {
+            panic!("the look-alike is a loop: {got:?}");
+        };
+        // Held by RTK the graph can be off by the floor only; on odometry alone, 5 % of the 40 m.
+        let expected = if gnss { 1.0 } else { 1.0 + 0.05 * 40.0 };
+        assert!((allowed_m - expected).abs() < 0.05, "{allowed_m}");
+        // 40 m away, less the 2 x 8 m the ICP could move: refused before it runs.
+        assert!(correction_m >= 40.0 - 16.0 - 0.1, "{correction_m}");
+    }
+}

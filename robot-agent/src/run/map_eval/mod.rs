@@ -30,6 +30,11 @@ pub struct MapEvalOptions {
     pub use_truth_poses: bool,
     /// Stop after this much simulated time even if the drive is not done, seconds.
     pub max_duration_s: f64,
+    /// After the drive, the robot stands still (the agent running on) for at most this long
+    /// while a map rebuild is under way, so that the map scored is the one after the last
+    /// correction, as an operator would see it a few seconds after the mission, seconds
+    /// (0: score the map as it is when the drive ends).
+    pub settle_max_s: f64,
     /// The agent (its mapper, SLAM, GNSS handling, robot profile; the profile is also the
     /// simulated robot's and the truth labels').
     pub agent: AgentConfig,
@@ -58,6 +63,7 @@ impl Default for MapEvalOptions {
             seed: 1,
             use_truth_poses: false,
             max_duration_s: 1200.0,
+            settle_max_s: 60.0,
             agent: AgentConfig::default(),
             walker_margin_m: 0.0,
             tiles_out: None,
@@ -122,8 +128,17 @@ pub fn run(
     let mut last = rig.sim.truth_pose2();
     let mut last_progress = 0.0;
     let n_vertices = drive.points.len().max(1) as f64;
-    while !driver.is_done() && rig.t_s() < opts.max_duration_s {
-        let (v, w) = driver.command(&rig.sim.truth_pose2());
+    let mut drive_end_s = None;
+    while rig.t_s() < opts.max_duration_s {
+        let (v, w) = if driver.is_done() {
+            let end = *drive_end_s.get_or_insert(rig.t_s());
+            if !rig.agent.terrain().rebuild_running() || rig.t_s() - end >= opts.settle_max_s {
+                break;
+            }
+            (0.0, 0.0)
+        } else {
+            driver.command(&rig.sim.truth_pose2())
+        };
         rig.drive_override = Some(agent::Cmd {
             v_mps: v,
             omega_rps: w,
@@ -158,6 +173,7 @@ pub fn run(
         }
     }
     rep.duration_s = rig.t_s();
+    rep.settle_s = drive_end_s.map_or(0.0, |end| rig.t_s() - end);
     rep.scans = rig.scan.n as usize;
     rep.ms_per_update = rig.scan.mean();
     rep.ms_max = rig.scan.max;
@@ -207,6 +223,7 @@ pub fn run(
                 g.loop_no_candidate,
                 g.loop_icp_failed,
                 g.loop_poor_fit,
+                g.loop_inconsistent,
             ],
         };
     }

@@ -51,6 +51,9 @@ pub struct MapEvalReport {
     pub scans: usize,
     /// Simulated seconds.
     pub duration_s: f64,
+    /// Of it, how long the robot stood still after the drive for a map rebuild to land,
+    /// seconds.
+    pub settle_s: f64,
     /// Distance driven, metres.
     pub path_m: f64,
     /// Tiles published (every version).
@@ -182,8 +185,8 @@ pub struct GraphReport {
     /// Sweeps dropped from the store to stay under `map_rebuild_max_mb`.
     pub kept_dropped: u64,
     /// Loop searches per outcome: no usable descriptor, no candidate close enough, ICP failed,
-    /// ICP fit too poor.
-    pub loop_rejections: [usize; 4],
+    /// ICP fit too poor, fit but further than the graph can have drifted.
+    pub loop_rejections: [usize; 5],
 }
 
 /// The final map's kept sweeps mapped again at unchanged poses, scored.
