@@ -374,17 +374,10 @@ impl PoseGraph {
         cloud: Option<Arc<OrientedCloud>>,
     ) -> usize {
         let idx = self.keyframes.len();
-        let travel = self.keyframes.last().map_or(0.0, |prev| {
-            self.travel_m[idx - 1]
-                + (prev.odom_pose.inverse() * odom_pose)
-                    .translation
-                    .vector
-                    .norm()
-        });
-        self.travel_m.push(travel);
         self.anchored.push(idx == 0);
         let pose = match self.keyframes.last() {
             None => {
+                self.travel_m.push(0.0);
                 self.factors.push(Factor::Prior {
                     kf: idx,
                     pose: odom_pose,
@@ -395,6 +388,7 @@ impl PoseGraph {
             Some(prev) => {
                 let step = prev.odom_pose.inverse() * odom_pose;
                 let dist = step.translation.vector.norm();
+                self.travel_m.push(self.travel_m[idx - 1] + dist);
                 let c = &self.cfg;
                 self.factors.push(Factor::Between {
                     from: idx - 1,
@@ -563,13 +557,12 @@ impl PoseGraph {
         if n == 0 {
             return Some(own);
         }
-        let last = (centre + n).min(self.keyframes.len() - 1);
         // Nearest neighbours first, so where thinning has to choose, the nearer sweep's point stays.
         let members: Vec<usize> = (1..=n)
             .flat_map(|d| {
                 [
                     centre.checked_sub(d),
-                    Some(centre + d).filter(|j| *j <= last),
+                    Some(centre + d).filter(|j| *j < self.keyframes.len()),
                 ]
             })
             .flatten()
@@ -621,10 +614,11 @@ impl PoseGraph {
         // Each of the ICP's two passes moves at most `loop_max_offset_m` from where it starts,
         // so a candidate further than that from the graph's place is refused without the ICP
         // (most of the descriptor's look-alikes: the verification is the costly part).
-        let reach_m = (predicted.translation.vector - init.translation.vector).norm();
-        if reach_m - 2.0 * self.cfg.loop_max_offset_m > allowed_m {
+        let least_correction_m = (predicted.translation.vector - init.translation.vector).norm()
+            - 2.0 * self.cfg.loop_max_offset_m;
+        if least_correction_m > allowed_m {
             return Err(LoopRejection::Inconsistent {
-                correction_m: reach_m - 2.0 * self.cfg.loop_max_offset_m,
+                correction_m: least_correction_m,
                 allowed_m,
             });
         }
