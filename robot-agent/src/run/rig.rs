@@ -331,12 +331,13 @@ impl Rig {
                 if trace_enabled() {
                     let h = self.agent.localiser().health();
                     eprintln!(
-                        "trace scan t {:.1} {} slam inliers {:.2} iter {} degenerate {} mapped {}",
+                        "trace scan t {:.1} {} slam inliers {:.2} iter {} degenerate {} eig {:.1e} mapped {}",
                         self.t_s(),
                         self.pose_error_text(),
                         h.inlier_ratio,
                         h.iterations,
                         h.degenerate,
+                        h.eig_ratio,
                         self.agent.scans_not_mapped()
                     );
                 }

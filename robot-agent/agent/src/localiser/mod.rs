@@ -94,6 +94,9 @@ pub struct SlamHealth {
     pub iterations: u32,
     /// Geometry degenerate in some direction.
     pub degenerate: bool,
+    /// Smallest / largest eigenvalue of the last registration's Hessian (how well the geometry
+    /// constrained its weakest direction).
+    pub eig_ratio: f64,
     /// Sweeps that fell back to the prior or failed since start.
     pub failures: u32,
 }
@@ -423,6 +426,7 @@ impl Localiser {
             inlier_ratio: d.inlier_ratio,
             iterations: d.iterations as u32,
             degenerate: d.degenerate,
+            eig_ratio: d.eig_ratio,
             failures: self.health.failures + u32::from(d.fell_back_to_prior),
         };
         let anchored = |a: &Option<Anchor>| {
