@@ -173,6 +173,12 @@ pub struct IcpConfig {
     /// Degenerate geometry when the smallest/largest Hessian eigenvalue ratio is below this;
     /// the update is then not applied along the weak directions (the prior is kept there).
     pub degenerate_eig_ratio: f64,
+    /// Directions with an eigenvalue under this share of the largest (and over
+    /// `degenerate_eig_ratio`) are weak: followed, but only so far in one registration...
+    pub weak_eig_ratio: f64,
+    /// ...as this many of the data's own standard deviations along them (the robust residual
+    /// scale over the square root of the eigenvalue).
+    pub weak_max_sigmas: f64,
 }
 
 impl IcpConfig {
@@ -201,6 +207,8 @@ impl Default for IcpConfig {
             min_matched_points: 30,
             min_inlier_ratio: 0.2,
             degenerate_eig_ratio: 1e-3,
+            weak_eig_ratio: 1e-2,
+            weak_max_sigmas: 3.0,
         }
     }
 }

@@ -168,18 +168,30 @@ pub fn register(
         let lmin = eig.eigenvalues.min();
         res.eig_ratio = if lmax > 0.0 { lmin / lmax } else { 0.0 };
         res.degenerate = res.eig_ratio < cfg.degenerate_eig_ratio;
-        // Solve H xi = -g in the eigenbasis, dropping weak directions: along them the prior wins
-        // instead of noise (solution remapping).
+        // Solve H xi = -g in the eigenbasis, dropping degenerate directions: along them the
+        // prior wins instead of noise (solution remapping). Along weak ones the data is
+        // followed only within a few of its standard deviations of the prior: there a handful
+        // of far points, or a surface the correspondences slide along, can walk the pose a
+        // metre from a prior that was right (docs/algorithms.md §3.3).
+        let about_sensor = Isometry3::translation(c.x, c.y, c.z);
+        let from_init = se3::log(&(about_sensor.inverse() * pose * init.inverse() * about_sensor))
+            .component_div(&d);
         let mut xs = Vector6::<f64>::zeros();
         for k in 0..6 {
             let l = eig.eigenvalues[k];
-            if l > cfg.degenerate_eig_ratio * lmax && l > 0.0 {
-                let v = eig.eigenvectors.column(k);
-                xs -= v * (v.dot(&gs) / l);
+            if l <= cfg.degenerate_eig_ratio * lmax || l <= 0.0 {
+                continue;
             }
+            let v = eig.eigenvectors.column(k);
+            let mut step = -v.dot(&gs) / l;
+            if l < cfg.weak_eig_ratio * lmax {
+                let reach = cfg.weak_max_sigmas * scale / l.sqrt();
+                let at = v.dot(&from_init);
+                step = (at + step).clamp(-reach, reach) - at;
+            }
+            xs += v * step;
         }
         let xi = xs.component_mul(&d);
-        let about_sensor = Isometry3::translation(c.x, c.y, c.z);
         pose = about_sensor * se3::exp(&xi) * about_sensor.inverse() * pose;
         let corr = pose * init.inverse();
         if se3::rotation_angle(&corr) > cfg.max_correction_rot_rad
@@ -303,6 +315,50 @@ mod tests {
         // z is corrected, x (unobservable on a plane) stays at the prior.
         assert!((r.pose.translation.z + 0.1).abs() < 0.01, "{r:?}");
         assert!((r.pose.translation.x - 0.5).abs() < 1e-6, "{r:?}");
+    }
+
+    #[test]
+    fn a_weak_direction_moves_only_within_its_spread() {
+        // A floor and, 6 m away, a short wall of 40 points that moved 0.4 m sideways between
+        // the two clouds (a parked car that left): the only hold on y is those points. As on a
+        // flat platform top with one far edge in view, following them would slide the pose;
+        // the odometry's prior is the better estimate along that direction.
+        let mut rng = StdRng::seed_from_u64(5);
+        let floor = |rng: &mut StdRng| -> Vec<[f32; 3]> {
+            (0..5000)
+                .map(|_| {
+                    [
+                        rng.random_range(-8.0..8.0),
+                        rng.random_range(-8.0..8.0),
+                        -1.0,
+                    ]
+                })
+                .collect()
+        };
+        let wall = |rng: &mut StdRng, y: f32| -> Vec<[f32; 3]> {
+            (0..40)
+                .map(|_| [rng.random_range(-1.0..1.0), y, rng.random_range(-0.9..0.0)])
+                .collect()
+        };
+        let mut t = floor(&mut rng);
+        t.extend(wall(&mut rng, 6.0));
+        let mut r = floor(&mut rng);
+        r.extend(wall(&mut rng, 6.4));
+        let target = cloud(t);
+        let reading = cloud(r.iter().map(|p| [p[0], p[1], p[2] + 0.05]).collect());
+        let init = Isometry3::identity();
+        let index = KdIndex::build(&target.points);
+        let held = register(&reading, &target, &index, &init, &IcpConfig::default());
+        assert!(held.status.is_ok(), "{held:?}");
+        assert!(held.pose.translation.y.abs() < 0.05, "{held:?}");
+        assert!((held.pose.translation.z + 0.05).abs() < 0.01, "{held:?}");
+        // Without the weak class the wall drags the pose along.
+        let trusting = IcpConfig {
+            weak_eig_ratio: 0.0,
+            ..IcpConfig::default()
+        };
+        let dragged = register(&reading, &target, &index, &init, &trusting);
+        assert!(dragged.pose.translation.y < -0.2, "{dragged:?}");
     }
 
     #[test]
