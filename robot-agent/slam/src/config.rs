@@ -171,7 +171,8 @@ pub struct IcpConfig {
     /// Failure when the weighted share of matched reading points falls below this.
     pub min_inlier_ratio: f64,
     /// Degenerate geometry when the smallest/largest Hessian eigenvalue ratio is below this;
-    /// the update is then not applied along the weak directions (the prior is kept there).
+    /// the update is then not applied along directions under this share of the largest
+    /// eigenvalue (the prior is kept there).
     pub degenerate_eig_ratio: f64,
     /// Directions with an eigenvalue under this share of the largest (and over
     /// `degenerate_eig_ratio`) are weak: followed, but only so far in one registration...

@@ -174,8 +174,8 @@ pub fn register(
         // of far points, or a surface the correspondences slide along, can walk the pose a
         // metre from a prior that was right (docs/algorithms.md §3.3).
         let about_sensor = Isometry3::translation(c.x, c.y, c.z);
-        let from_init = se3::log(&(about_sensor.inverse() * pose * init.inverse() * about_sensor))
-            .component_div(&d);
+        // Only sweeps with a weak direction need it (most have none).
+        let mut from_init = None;
         let mut xs = Vector6::<f64>::zeros();
         for k in 0..6 {
             let l = eig.eigenvalues[k];
@@ -186,7 +186,11 @@ pub fn register(
             let mut step = -v.dot(&gs) / l;
             if l < cfg.weak_eig_ratio * lmax {
                 let reach = cfg.weak_max_sigmas * scale / l.sqrt();
-                let at = v.dot(&from_init);
+                let from_init = from_init.get_or_insert_with(|| {
+                    se3::log(&(about_sensor.inverse() * pose * init.inverse() * about_sensor))
+                        .component_div(&d)
+                });
+                let at = v.dot(from_init);
                 step = (at + step).clamp(-reach, reach) - at;
             }
             xs += v * step;
