@@ -37,4 +37,6 @@ mod tests_far_view;
 
 pub use classify::Class;
 pub use config::{Config, ConfigError, IsolatedPair};
-pub use mapper::{Evidence, MapError, Mapper, PlannerView, RobotPose, UpdateReport};
+pub use mapper::{
+    CellSource, Evidence, MapError, Mapper, PlannerView, Replaced, RobotPose, UpdateReport,
+};

@@ -7,12 +7,17 @@
 //! `grow` cells of a kept return (at the pose the live map has it, or at its corrected one)
 //! that moves horizontally by more than the tolerance, or of a cell whose returns move
 //! vertically by amounts more than the tolerance apart (sweeps set against each other in
-//! height). The tolerance is `map_rebuild_min_move_m` or half a cell, the larger: a return moved
-//! by less than half a cell stays in its cell or the next. The other cells hold evidence whose
-//! kept sweeps all moved alike and by less than that sideways: they keep the live map's cells,
-//! raised or lowered by the mean vertical move of their returns, so that they meet the rebuilt
-//! cells without a step. The sweeps between kept ones moved about as much as their neighbours;
-//! `grow` takes in the neighbourhoods the step rule and the costs read.
+//! height). The tolerance is `map_rebuild_min_move_m` or a cell, the larger: a return moved by
+//! less than a cell stays in its cell or the next, and on `loop` the thinned rebuild's
+//! rendering cost more than that (the second swap put trees 0.2-0.5 m off with half a cell).
+//! The other cells hold evidence whose kept sweeps all moved alike and by less than that
+//! sideways: they keep the live map's cells, raised or lowered by the mean vertical move of
+//! their returns, so that they meet the rebuilt cells without a step. The sweeps between kept
+//! ones moved about as much as their neighbours; `grow` takes in the neighbourhoods the step
+//! rule and the costs read. Inside the grown mask a cell whose own returns (or those around
+//! it) moved by at most a cell still keeps the live map's cell where the rebuild saw it only
+//! from afar ([`CellSource::Closer`]): the one close view of a cell away from the path may be
+//! among the sweeps the store thinned away.
 //!
 //! The moves are gathered sweep by sweep as the rebuild feeds them ([`CellMoves::add`], a few a
 //! tick like the rebuild itself: the whole store at once took 0.65 s in one sweep on `loop`)
@@ -21,16 +26,19 @@
 use super::cell_mask::CellMask;
 use super::rebuild::Remap;
 use common::grid::{Lattice, TileIndex};
+use mapping::CellSource;
 use nalgebra::{Isometry3, Point3};
 use std::collections::{HashMap, HashSet};
 
-/// The vertical moves of the returns that fell in one cell.
+/// The moves of the returns that fell in one cell: vertical, and the largest sideways.
 #[derive(Clone, Copy)]
 struct DzAcc {
     min: f32,
     max: f32,
     sum: f32,
     n: u32,
+    /// Largest sideways move, metres.
+    side: f32,
 }
 
 impl DzAcc {
@@ -39,9 +47,11 @@ impl DzAcc {
         max: f32::NEG_INFINITY,
         sum: 0.0,
         n: 0,
+        side: 0.0,
     };
 
-    fn add(&mut self, dz: f32) {
+    fn add(&mut self, dz: f32, side: f32) {
+        self.side = self.side.max(side);
         self.min = self.min.min(dz);
         self.max = self.max.max(dz);
         self.sum += dz;
@@ -61,6 +71,8 @@ impl DzAcc {
 /// The moves of the kept returns fed so far, per cell (see the module docs).
 pub struct CellMoves {
     lattice: Lattice,
+    /// Sideways move, and spread of one cell's vertical moves, over which cells are rebuilt,
+    /// metres.
     tol_m: f64,
     near_m: f32,
     /// Per tile a return fell in, row-major.
@@ -76,7 +88,7 @@ impl CellMoves {
     pub fn new(lattice: Lattice, min_move_m: f64, near_m: f64) -> Self {
         Self {
             lattice,
-            tol_m: min_move_m.max(0.5 * lattice.cell_size_f64()),
+            tol_m: min_move_m.max(lattice.cell_size_f64()),
             near_m: near_m as f32,
             acc: HashMap::new(),
             seeds: HashSet::new(),
@@ -84,8 +96,15 @@ impl CellMoves {
     }
 
     /// Gathers how a kept sweep's returns move from where the live map has them to where the
-    /// rebuild puts them.
-    pub fn add(&mut self, r: &Remap, base_from_lidar: &Isometry3<f64>) {
+    /// rebuild puts them. `far_view_m` gives, per cell, the farthest a return may be from the
+    /// sensor and still have entered the live map's cell ([`mapping::Mapper::far_view_m`]):
+    /// one from farther, skipped for a closer view, moves nothing there.
+    pub fn add(
+        &mut self,
+        r: &Remap,
+        base_from_lidar: &Isometry3<f64>,
+        far_view_m: impl Fn(i64, i64) -> f32,
+    ) {
         let delta = (r.map_from_base * r.live_from_base.inverse()).cast::<f32>();
         let map_from_lidar = (r.live_from_base * base_from_lidar).cast::<f32>();
         let tol2 = (self.tol_m * self.tol_m) as f32;
@@ -96,12 +115,17 @@ impl CellMoves {
         let mut last_seed: Option<(i64, i64)> = None;
         let mut tiles: Vec<(TileIndex, Vec<DzAcc>)> = Vec::new();
         for q in &r.points {
-            if q[0] * q[0] + q[1] * q[1] + q[2] * q[2] > near2 {
+            let range2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2];
+            if range2 > near2 {
                 continue;
             }
             let p = map_from_lidar * Point3::new(q[0], q[1], q[2]);
-            let d = delta * p - p;
             let c = self.lattice.cell_of(f64::from(p.x), f64::from(p.y));
+            let far = far_view_m(c.0, c.1);
+            if range2 > far * far {
+                continue;
+            }
+            let d = delta * p - p;
             if d.xy().norm_squared() > tol2 {
                 let m = p + d;
                 // Returns in sweep order mostly fall in the cell of the one before.
@@ -131,7 +155,7 @@ impl CellMoves {
                     i
                 }
             };
-            tiles[i].1[row as usize * n + col as usize].add(d.z);
+            tiles[i].1[row as usize * n + col as usize].add(d.z, d.xy().norm());
         }
         self.acc.extend(tiles);
     }
@@ -164,7 +188,19 @@ impl CellMoves {
             } else {
                 (sum / f64::from(count)) as f32
             };
-            dz.insert(t, (acc.iter().map(DzAcc::mean).collect(), mean));
+            let side = acc.iter().map(|a| a.side).fold(f32::NAN, f32::max);
+            dz.insert(
+                t,
+                TileMoves {
+                    dz: acc.iter().map(DzAcc::mean).collect(),
+                    dz_mean: mean,
+                    side: acc
+                        .iter()
+                        .map(|a| if a.n > 0 { a.side } else { f32::NAN })
+                        .collect(),
+                    side_max: side,
+                },
+            );
         }
         let seeds: Vec<(i64, i64)> = self.seeds.into_iter().collect();
         CellCorrection {
@@ -179,15 +215,33 @@ impl CellMoves {
 pub struct CellCorrection {
     /// The cells to rebuild (None: every cell of the stale tiles).
     stale: Option<CellMask>,
-    /// Per stale tile, row-major, the mean vertical move of each cell's kept returns, metres
-    /// (NaN: none fell there), and the mean over its cells that have one.
-    dz: HashMap<TileIndex, (Vec<f32>, f32)>,
+    /// Per stale tile, the moves of its cells' kept returns.
+    dz: HashMap<TileIndex, TileMoves>,
     lattice: Lattice,
+}
+
+/// The moves of one stale tile's kept returns, per cell row-major, metres (NaN: no return fell
+/// in the cell).
+struct TileMoves {
+    /// Mean vertical move.
+    dz: Vec<f32>,
+    /// The mean of `dz` over the cells that have one.
+    dz_mean: f32,
+    /// Largest sideways move.
+    side: Vec<f32>,
+    /// The largest of `side` (NaN: none).
+    side_max: f32,
 }
 
 /// How far a cell without kept returns looks for cells that have some, cells: the step rule's
 /// neighbourhood (it is set against those).
 const DZ_REACH: i64 = 2;
+
+/// Sideways move, in cells, up to which a stale cell may keep the live map's cell where the
+/// rebuild saw it only from afar ([`CellSource::Closer`]): the live cell is then at most a cell
+/// off, less than what a lost close view costs (a tree's ring rendered from one side, canopy
+/// returns taken for an obstacle).
+const CLOSER_MAX_SIDE_CELLS: f64 = 1.0;
 
 impl CellCorrection {
     /// The cell is to be rebuilt.
@@ -204,40 +258,99 @@ impl CellCorrection {
     /// or of those of the cells within [`DZ_REACH`] of it when none fell in it (its evidence
     /// came from the sweeps between kept ones), or of its tile's, or 0 outside the stale tiles.
     pub fn dz_m(&self, cx: i64, cy: i64) -> f64 {
-        let n = self.lattice.tile_cells as i64;
-        let (t, (c, r)) = self.lattice.tile_of_cell(cx, cy);
-        let Some((v, tile_mean)) = self.dz.get(&t) else {
+        let Some(t) = self.tile(cx, cy) else {
             return 0.0;
         };
-        let own = v[r as usize * n as usize + c as usize];
-        if own.is_finite() {
-            return f64::from(own);
-        }
-        // Neighbours in the same tile read its row; the others (at its edge) look theirs up.
-        let at = |dx: i64, dy: i64| {
-            let (nc, nr) = (i64::from(c) + dx, i64::from(r) + dy);
-            if (0..n).contains(&nc) && (0..n).contains(&nr) {
-                return v[(nr * n + nc) as usize];
-            }
-            let (t, (c, r)) = self.lattice.tile_of_cell(cx + dx, cy + dy);
-            self.dz
-                .get(&t)
-                .map_or(f32::NAN, |w| w.0[r as usize * n as usize + c as usize])
-        };
         let (mut sum, mut count) = (0.0f64, 0u32);
-        for dy in -DZ_REACH..=DZ_REACH {
-            for dx in -DZ_REACH..=DZ_REACH {
-                let z = at(dx, dy);
-                if z.is_finite() {
+        for reach in [0, DZ_REACH] {
+            self.around(
+                cx,
+                cy,
+                reach,
+                |m, k| m.dz[k],
+                |z| {
                     sum += f64::from(z);
                     count += 1;
-                }
+                },
+            );
+            if count > 0 {
+                return sum / f64::from(count);
             }
         }
-        if count > 0 {
-            sum / f64::from(count)
+        f64::from(t.dz_mean)
+    }
+
+    /// The largest sideways move of the kept returns in the cell, or within [`DZ_REACH`] of it
+    /// when none fell in it, or in its tile, metres (infinity: none in its tile).
+    pub fn side_m(&self, cx: i64, cy: i64) -> f64 {
+        let Some(t) = self.tile(cx, cy) else {
+            return f64::INFINITY;
+        };
+        let mut side = f32::NAN;
+        for reach in [0, DZ_REACH] {
+            self.around(cx, cy, reach, |m, k| m.side[k], |s| side = side.max(s));
+            if side.is_finite() {
+                return f64::from(side);
+            }
+        }
+        if t.side_max.is_finite() {
+            f64::from(t.side_max)
         } else {
-            f64::from(*tile_mean)
+            f64::INFINITY
+        }
+    }
+
+    /// Which map the cell takes at the swap: the live map's outside the stale cells; inside
+    /// them the rebuilt map's, unless the correction moved the evidence around it sideways by
+    /// at most [`CLOSER_MAX_SIDE_CELLS`] and the rebuild saw the cell only from afar
+    /// ([`CellSource::Closer`]).
+    pub fn source(&self, cx: i64, cy: i64) -> CellSource {
+        if !self.is_stale(cx, cy) {
+            CellSource::Live {
+                dz_m: self.dz_m(cx, cy),
+            }
+        } else if self.side_m(cx, cy) <= CLOSER_MAX_SIDE_CELLS * self.lattice.cell_size_f64() {
+            CellSource::Closer {
+                dz_m: self.dz_m(cx, cy),
+            }
+        } else {
+            CellSource::Rebuilt
+        }
+    }
+
+    fn tile(&self, cx: i64, cy: i64) -> Option<&TileMoves> {
+        self.dz.get(&self.lattice.tile_of_cell(cx, cy).0)
+    }
+
+    /// Calls `f` with `get`'s finite values over the cells within `reach` of (cx, cy) (those
+    /// of neighbouring tiles looked up there).
+    fn around(
+        &self,
+        cx: i64,
+        cy: i64,
+        reach: i64,
+        get: impl Fn(&TileMoves, usize) -> f32,
+        mut f: impl FnMut(f32),
+    ) {
+        let n = self.lattice.tile_cells as i64;
+        let (t, (c, r)) = self.lattice.tile_of_cell(cx, cy);
+        let home = self.dz.get(&t);
+        for dy in -reach..=reach {
+            for dx in -reach..=reach {
+                let (nc, nr) = (i64::from(c) + dx, i64::from(r) + dy);
+                // Neighbours in the same tile read its row; the others look theirs up.
+                let v = if (0..n).contains(&nc) && (0..n).contains(&nr) {
+                    home.map_or(f32::NAN, |m| get(m, (nr * n + nc) as usize))
+                } else {
+                    let (t, (c, r)) = self.lattice.tile_of_cell(cx + dx, cy + dy);
+                    self.dz
+                        .get(&t)
+                        .map_or(f32::NAN, |m| get(m, r as usize * n as usize + c as usize))
+                };
+                if v.is_finite() {
+                    f(v);
+                }
+            }
         }
     }
 }
@@ -276,7 +389,7 @@ mod tests {
     ) -> CellCorrection {
         let mut m = CellMoves::new(LATTICE, st.min_move_m(), st.near_range_m());
         for r in st.after(None, usize::MAX) {
-            m.add(&r, blf);
+            m.add(&r, blf, |_, _| f32::INFINITY);
         }
         m.finish(&all_tiles(), grow, max_cells)
     }
@@ -333,6 +446,61 @@ mod tests {
     }
 
     #[test]
+    fn a_return_too_far_to_have_entered_the_live_cell_moves_nothing_there() {
+        let blf = Isometry3::identity();
+        let mut st = SweepStore::new(0.5, 0.05, 30.0, 100.0);
+        let p = se3::from_xyz_rpy([0.0; 3], [0.0; 3]);
+        st.offer(0.0, &p, &p, &[pt(1.1), pt(25.1)], false);
+        st.correct(|_| Some(se3::from_xyz_rpy([0.0, 0.3, 0.0], [0.0; 3])), None);
+        // The live map saw the far cell from 5 m: returns from beyond 11 m were skipped there.
+        let (fx, _) = LATTICE.cell_of(25.1, 0.0);
+        let mut m = CellMoves::new(LATTICE, st.min_move_m(), st.near_range_m());
+        for r in st.after(None, usize::MAX) {
+            m.add(
+                &r,
+                &blf,
+                |cx, _| if cx == fx { 11.0 } else { f32::INFINITY },
+            );
+        }
+        let cells = m.finish(&all_tiles(), 0, 1 << 20);
+        let stale = |x: f64| {
+            let (cx, cy) = LATTICE.cell_of(x, 0.0);
+            cells.is_stale(cx, cy)
+        };
+        assert!(stale(1.1), "the near return moved 1.5 cells");
+        assert!(!stale(25.1), "the far one did not shape its cell");
+    }
+
+    #[test]
+    fn a_stale_cell_moved_by_at_most_a_cell_may_keep_a_closer_view() {
+        let blf = Isometry3::identity();
+        let mut st = SweepStore::new(0.5, 0.05, 30.0, 100.0);
+        let p = |x: f64| se3::from_xyz_rpy([x, 0.0, 0.0], [0.0; 3]);
+        // Returns at x = 5.1 m (first sweep) and 5.5 m (second), two cells apart.
+        st.offer(0.0, &p(0.0), &p(0.0), &[pt(5.1)], false);
+        st.offer(1.0, &p(1.0), &p(1.0), &[pt(4.5)], false);
+        // The first moves 0.15 m sideways (under a cell), the second 0.3 m, both 4 cm up.
+        let small = se3::from_xyz_rpy([0.0, 0.15, 0.04], [0.0; 3]);
+        let large = se3::from_xyz_rpy([0.0, 0.3, 0.04], [0.0; 3]);
+        st.correct(|t| Some(if t == 0.0 { small } else { large }), None);
+        let cells = correction(&st, &blf, 2, 1 << 20);
+        let at = |x: f64| {
+            let (cx, cy) = LATTICE.cell_of(x, 0.0);
+            (cells.is_stale(cx, cy), cells.source(cx, cy))
+        };
+        let (stale, source) = at(5.1);
+        assert!(stale, "two cells from a return moved by more than a cell");
+        assert!(matches!(source, CellSource::Closer { dz_m } if (dz_m - 0.04).abs() < 1e-4));
+        assert_eq!(at(5.5), (true, CellSource::Rebuilt), "moved 1.5 cells");
+        assert_eq!(
+            at(5.3),
+            (true, CellSource::Rebuilt),
+            "no return of its own, one beside it moved 1.5 cells"
+        );
+        assert!(matches!(at(4.3), (false, CellSource::Live { .. })));
+    }
+
+    #[test]
     fn cells_a_correction_lifts_alike_keep_their_evidence_and_move_up() {
         let blf = Isometry3::identity();
         let mut st = SweepStore::new(0.5, 0.05, 30.0, 100.0);
@@ -362,9 +530,9 @@ mod tests {
         );
         assert_eq!(dz(20.0), 0.0, "a tile no return fell in");
         st.swapped();
-        // The second lifted 15 cm more than the first: the shared cell's returns move apart by
-        // more than half a cell.
-        let up2 = se3::from_xyz_rpy([0.0, 0.0, 0.23], [0.0; 3]);
+        // The second lifted 25 cm more than the first: the shared cell's returns move apart by
+        // more than a cell.
+        let up2 = se3::from_xyz_rpy([0.0, 0.0, 0.33], [0.0; 3]);
         st.correct(|t| Some(if t == 1.0 { up2 } else { up }), None);
         let cells = correction(&st, &blf, 0, 1 << 20);
         let stale = |x: f64| {
@@ -377,7 +545,7 @@ mod tests {
             "a cell one sweep saw moves with it"
         );
         let (cx, cy) = LATTICE.cell_of(10.7, 0.0);
-        assert!((cells.dz_m(cx, cy) - 0.15).abs() < 1e-4);
+        assert!((cells.dz_m(cx, cy) - 0.25).abs() < 1e-4);
         // 8 cm apart is within the tolerance: kept, at their mean move.
         st.correct(|t| Some(if t == 1.0 { up * up } else { up }), None);
         let cells = correction(&st, &blf, 0, 1 << 20);

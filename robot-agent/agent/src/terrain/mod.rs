@@ -260,7 +260,9 @@ impl TerrainMap {
         };
         for r in kept.after(sh.fed_until, n) {
             sh.follow_frames_before(r.t_s, radius_m);
-            sh.moves.add(&r, base_from_lidar);
+            let live = &self.mapper;
+            sh.moves
+                .add(&r, base_from_lidar, |cx, cy| live.far_view_m(cx, cy));
             match map_kept(&mut sh.mapper, &r, base_from_lidar) {
                 Ok(u) => self.cleared_cells += u.cleared_cells,
                 Err(e) => {
@@ -292,24 +294,24 @@ impl TerrainMap {
         kept.swapped();
         let thinned = kept.respace();
         let held = self.mapper.tile_count();
-        let tiles = self.mapper.replace_cells_with(
+        let r = self.mapper.replace_cells_with(
             sh.mapper,
             t_s,
             |t| stale.contains(&t),
-            |cx, cy| cells.is_stale(cx, cy),
-            |cx, cy| cells.dz_m(cx, cy),
+            |cx, cy| cells.source(cx, cy),
         );
         tracing::info!(
-            "map rebuild swapped in at {t_s:.2} s: {} kept sweeps fed since {:.2} s, {} of {held} tiles replaced, {} of their cells rebuilt, {thinned} sweeps kept meanwhile thinned to the spacing",
+            "map rebuild swapped in at {t_s:.2} s: {} kept sweeps fed since {:.2} s, {} of {held} tiles replaced, {} of their cells rebuilt ({} of those kept the live cell, seen from closer), {thinned} sweeps kept meanwhile thinned to the spacing",
             sh.fed,
             sh.started_s,
-            tiles.len(),
+            r.tiles.len(),
             cells
                 .stale_cells()
                 .map_or_else(|| "all".to_string(), |n| n.to_string()),
+            r.kept_closer,
         );
         self.rebuilds += 1;
-        Ok(tiles)
+        Ok(r.tiles)
     }
 
     /// True while a rebuilt map is being made and has not replaced the live one yet.

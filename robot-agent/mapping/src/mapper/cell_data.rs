@@ -164,6 +164,15 @@ impl CellData {
         }
     }
 
+    /// Closest robot distance the cell's evidence was taken from, metres (infinity: it holds
+    /// none): the yardstick of the far-view rule (§4.3).
+    #[inline]
+    pub(super) fn closest_view_m(&self) -> f32 {
+        self.seen_range_m
+            .min(self.cur_range_m)
+            .min(self.prev_range_m)
+    }
+
     /// Both epochs' evidence together.
     #[inline]
     pub(super) fn evidence(&self) -> Moments {

@@ -200,10 +200,9 @@ impl Mapper {
             // as the robot drives away each epoch is a little farther than the one before and
             // passes, and the close view would creep out to 12 m one epoch at a time.
             let far = self.data(cx, cy).is_some_and(|d| {
-                let best = d.seen_range_m.min(d.cur_range_m).min(d.prev_range_m);
                 kind == Evidence::Scan
                     && d.cur.n > 0
-                    && range_m > far_factor * best + 1.0
+                    && range_m > far_factor * d.closest_view_m() + 1.0
                     && (t_s as f32) - d.accepted_s < stale_s
             }) && !self.far_news(cx, cy, &low.merged(&high), grows);
             if far {

@@ -31,13 +31,14 @@ impl Mapper {
         t_s: f64,
         stale: impl Fn(TileIndex) -> bool,
     ) -> Vec<TileIndex> {
-        self.replace_cells_with(rebuilt, t_s, stale, |_, _| true, |_, _| 0.0)
+        self.replace_cells_with(rebuilt, t_s, stale, |_, _| CellSource::Rebuilt)
+            .tiles
     }
 
-    /// [`Mapper::replace_tiles_with`] where, inside a stale tile, only the cells `stale_cell`
-    /// says (global cell indices) are the rebuilt map's: the others keep this map's evidence,
-    /// verdicts and stamps, their heights moved by `dz_of` metres (the vertical part of the
-    /// correction there). The tile is still published again. The caller's stale cells must
+    /// [`Mapper::replace_tiles_with`] where, inside a stale tile, `source` says per cell
+    /// (global cell indices) which map's cell it takes ([`CellSource`]). A cell kept from this
+    /// map keeps its evidence, verdict and stamp, its heights moved by the vertical part of the
+    /// correction there. The tile is still published again. The caller's rebuilt cells must
     /// take in the neighbourhoods classification and costs read, so that a kept cell's verdict
     /// does not lean on a cell the rebuild changed.
     pub fn replace_cells_with(
@@ -45,13 +46,14 @@ impl Mapper {
         mut rebuilt: Mapper,
         t_s: f64,
         stale: impl Fn(TileIndex) -> bool,
-        stale_cell: impl Fn(i64, i64) -> bool,
-        dz_of: impl Fn(i64, i64) -> f64,
-    ) -> Vec<TileIndex> {
+        source: impl Fn(i64, i64) -> CellSource,
+    ) -> Replaced {
         let min_points = self.rules.min_points();
+        let far_factor = self.cfg.far_evidence_factor as f32;
         let lattice = self.lattice;
-        let keep = |to: &mut TileSlot, from: &TileSlot| {
-            keep_cells(to, from, &lattice, &stale_cell, &dz_of, min_points);
+        let mut kept_closer = 0;
+        let mut keep = |to: &mut TileSlot, from: &TileSlot| {
+            kept_closer += keep_cells(to, from, &lattice, &source, far_factor, min_points);
         };
         let stamp = super::evidence::stamp_of(t_s);
         let n = lattice.tile_cells as usize;
@@ -100,12 +102,14 @@ impl Mapper {
             .map(|(i, s)| (s.index, i))
             .collect();
         rebuilt.slots = slots;
-        // Cells this map kept that wait to be classified wait on.
-        rebuilt.pending.extend(
-            self.pending
-                .iter()
-                .filter(|&&(cx, cy)| !stale(lattice.tile_of_cell(cx, cy).0) || !stale_cell(cx, cy)),
-        );
+        // Cells this map kept outright that wait to be classified wait on (one a closer view
+        // kept is judged again when next seen).
+        rebuilt
+            .pending
+            .extend(self.pending.iter().filter(|&&(cx, cy)| {
+                !stale(lattice.tile_of_cell(cx, cy).0)
+                    || matches!(source(cx, cy), CellSource::Live { .. })
+            }));
         rebuilt.last_t_s = match (self.last_t_s, rebuilt.last_t_s) {
             (Some(a), Some(b)) => Some(a.max(b)),
             (a, b) => a.or(b),
@@ -117,34 +121,82 @@ impl Mapper {
             .set((TileIndex { tx: 0, ty: 0 }, usize::MAX));
         tiles.sort_unstable();
         *self = rebuilt;
-        tiles
+        Replaced { tiles, kept_closer }
     }
 }
 
-/// Copies into `to` the cells of `from` (the same tile) that `stale_cell` does not claim,
-/// their heights moved by `dz_of`.
+/// Which map a cell of a stale tile takes at a swap ([`Mapper::replace_cells_with`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum CellSource {
+    /// This map's cell, its heights moved.
+    Live {
+        /// Vertical part of the correction at the cell, metres.
+        dz_m: f64,
+    },
+    /// The rebuilt map's cell.
+    Rebuilt,
+    /// The rebuilt map's cell, unless the rebuild saw the cell only from afar where this map
+    /// saw it from close, or not at all: then this map's, as [`CellSource::Live`]. "From afar"
+    /// is the mapper's own rule for when a far view may not overwrite a close one (§4.3):
+    /// farther than `far_evidence_factor` times this map's closest view plus 1 m. The rebuild
+    /// maps one sweep in several, and the one close view of a cell away from the path may not
+    /// be among them; the caller offers this where the correction moved the cell's evidence by
+    /// little, so that this map's cell is the smaller error.
+    Closer {
+        /// Vertical part of the correction at the cell, metres.
+        dz_m: f64,
+    },
+}
+
+/// What [`Mapper::replace_cells_with`] did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Replaced {
+    /// Every tile to publish again, sorted.
+    pub tiles: Vec<TileIndex>,
+    /// Cells offered as [`CellSource::Closer`] that kept this map's cell.
+    pub kept_closer: usize,
+}
+
+/// Copies into `to` (the rebuilt tile) the cells of `from` (this map's, the same tile) that
+/// `source` keeps, their heights moved; returns how many [`CellSource::Closer`] kept.
 fn keep_cells(
     to: &mut TileSlot,
     from: &TileSlot,
     lattice: &common::grid::Lattice,
-    stale_cell: impl Fn(i64, i64) -> bool,
-    dz_of: impl Fn(i64, i64) -> f64,
+    source: impl Fn(i64, i64) -> CellSource,
+    far_factor: f32,
     min_points: u32,
-) {
+) -> usize {
     let n = lattice.tile_cells as usize;
     let (cx0, cy0) = lattice.tile_first_cell(to.index);
+    let mut kept_closer = 0;
     for k in 0..n * n {
         let (cx, cy) = (cx0 + (k % n) as i64, cy0 + (k / n) as i64);
-        if stale_cell(cx, cy) {
-            continue;
-        }
+        let dz = match source(cx, cy) {
+            CellSource::Rebuilt => continue,
+            CellSource::Live { dz_m } => dz_m,
+            CellSource::Closer { dz_m } => {
+                let live = from.data[k].closest_view_m();
+                let rebuilt = to.data[k].closest_view_m();
+                let saw_less = if rebuilt.is_finite() {
+                    rebuilt > far_factor * live + 1.0
+                } else {
+                    // No evidence: unseen, or seen empty by the beams (which stands).
+                    to.live[k].state == CellState::Unknown
+                };
+                if !(live.is_finite() && saw_less) {
+                    continue;
+                }
+                kept_closer += 1;
+                dz_m
+            }
+        };
         to.data[k] = from.data[k];
         to.ground[k] = from.ground[k];
         to.live[k] = from.live[k];
         let bit = 1u64 << (k & 63);
         if from.held[k >> 6] & bit != 0 {
             to.held[k >> 6] |= bit;
-            let dz = dz_of(cx, cy);
             if dz != 0.0 && dz.is_finite() {
                 let d = &mut to.data[k];
                 d.shift_heights(dz);
@@ -157,12 +209,14 @@ fn keep_cells(
             to.held[k >> 6] &= !bit;
         }
     }
+    kept_closer
 }
 
 #[cfg(test)]
 mod tests {
     use crate::synth::{cast_scan, LidarSpec, Rng};
-    use crate::{Class, Config, Mapper, RobotPose};
+    use crate::{CellSource, Class, Config, Mapper, RobotPose};
+    use common::grid::CellState;
 
     /// Flat ground with a 1 m box at (6, 0).
     fn world(x: f64, y: f64) -> f64 {
@@ -175,6 +229,11 @@ mod tests {
 
     /// Maps a drive along y = 0 whose sweeps are placed `offset_y` off (a drifted pose).
     fn mapped(offset_y: f64) -> Mapper {
+        mapped_from(offset_y, 0..6)
+    }
+
+    /// [`mapped`] with the sweeps at these x only (metres).
+    fn mapped_from(offset_y: f64, xs: std::ops::Range<i32>) -> Mapper {
         let spec = LidarSpec {
             az_step_deg: 0.4,
             max_range_m: 20.0,
@@ -182,7 +241,7 @@ mod tests {
         };
         let mut m = Mapper::new(Config::default()).unwrap();
         let mut rng = Rng::new(3);
-        for i in 0..6 {
+        for i in xs {
             let x = f64::from(i);
             let mut pts = cast_scan(&world, [x, 0.0, 0.7], &spec, &mut rng);
             for p in &mut pts {
@@ -256,13 +315,20 @@ mod tests {
         // the rebuilt one comes in.
         let (_, split) = l.cell_of(0.0, 0.5);
         // The kept cells move up 5 cm.
-        let tiles = drifted.replace_cells_with(
-            mapped(0.0),
-            17.0,
-            |t| t == box_tile,
-            |_, cy| cy < split,
-            |_, _| 0.05,
-        );
+        let tiles = drifted
+            .replace_cells_with(
+                mapped(0.0),
+                17.0,
+                |t| t == box_tile,
+                |_, cy| {
+                    if cy < split {
+                        CellSource::Rebuilt
+                    } else {
+                        CellSource::Live { dz_m: 0.05 }
+                    }
+                },
+            )
+            .tiles;
         assert_eq!(tiles, vec![box_tile], "the mixed tile goes out again");
         assert_eq!(obstacles_in(&drifted, north.0, north.1), drifted_north);
         assert!(
@@ -289,6 +355,53 @@ mod tests {
         assert_eq!(now.height_cm, was.height_cm + 5, "and moves up 5 cm");
         let (sx, sy) = l.cell_of(3.0, 0.1);
         assert_eq!(drifted.cell(sx, sy).stamp_s, 17, "a rebuilt cell");
+    }
+
+    #[test]
+    fn a_cell_the_rebuild_saw_only_from_afar_keeps_the_close_view() {
+        // The live map drove up to the box; the rebuild has the first two sweeps only, the
+        // nearer 4.5 m from the box's face.
+        let mut live = mapped(0.0);
+        let l = live.lattice();
+        let (fx, fy) = l.cell_of(5.55, 0.1);
+        // A ground cell the first sweeps' rings hit 2.6-4 m out: the live map's closest view of
+        // it is no nearer than the lowest ring's 2.6 m.
+        let first = mapped_from(0.0, 0..2);
+        let (gx, gy) = (0..12)
+            .map(|i| l.cell_of(3.6 + 0.1 * f64::from(i), 0.1))
+            .find(|&(cx, cy)| first.cell(cx, cy).state != CellState::Unknown)
+            .expect("a ring on the ground");
+        let face = live.cell(fx, fy);
+        assert_eq!(live.class(fx, fy), Class::Obstacle);
+        let closer = |_, _| CellSource::Closer { dz_m: 0.02 };
+        let r = live.replace_cells_with(first, 17.0, |_| true, closer);
+        let now = live.cell(fx, fy);
+        assert_eq!(
+            (now.state, now.stamp_s, now.hits),
+            (face.state, face.stamp_s, face.hits),
+            "the face seen from 0.5 m keeps the live cell"
+        );
+        assert_eq!(
+            now.height_cm,
+            face.height_cm + 2,
+            "moved up with the correction"
+        );
+        assert_eq!(
+            live.cell(gx, gy).stamp_s,
+            17,
+            "the ground both saw from about 3 m is the rebuilt map's"
+        );
+        assert!(r.kept_closer > 0);
+        // Offered the rebuilt cell outright, the face is the rebuild's.
+        let mut live = mapped(0.0);
+        let r = live.replace_cells_with(
+            mapped_from(0.0, 0..2),
+            17.0,
+            |_| true,
+            |_, _| CellSource::Rebuilt,
+        );
+        assert_eq!(live.cell(fx, fy).stamp_s, 17);
+        assert_eq!(r.kept_closer, 0);
     }
 
     #[test]
