@@ -525,16 +525,6 @@ impl Mapper {
         }
     }
 
-    /// How far a return may be from the robot and still enter the cell at a global lattice
-    /// index, metres: `far_evidence_factor` times the closest distance its evidence was taken
-    /// from, plus 1 m (§4.3; infinity when it holds none). Farther returns are skipped while
-    /// the close view is recent, so they do not shape the cell.
-    pub fn far_view_m(&self, cx: i64, cy: i64) -> f32 {
-        self.data(cx, cy).map_or(f32::INFINITY, |d| {
-            self.cfg.far_evidence_factor as f32 * d.closest_view_m() + 1.0
-        })
-    }
-
     /// The classification before inflation at a global lattice index (what is evaluated
     /// against truth labels).
     pub fn class(&self, cx: i64, cy: i64) -> Class {

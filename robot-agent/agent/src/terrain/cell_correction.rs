@@ -9,15 +9,15 @@
 //! vertically by amounts more than the tolerance apart (sweeps set against each other in
 //! height). The tolerance is `map_rebuild_min_move_m` or a cell, the larger: a return moved by
 //! less than a cell stays in its cell or the next, and on `loop` the thinned rebuild's
-//! rendering cost more than that (the second swap put trees 0.2-0.5 m off with half a cell).
-//! The other cells hold evidence whose kept sweeps all moved alike and by less than that
-//! sideways: they keep the live map's cells, raised or lowered by the mean vertical move of
-//! their returns, so that they meet the rebuilt cells without a step. The sweeps between kept
-//! ones moved about as much as their neighbours; `grow` takes in the neighbourhoods the step
-//! rule and the costs read. Inside the grown mask a cell whose own returns (or those around
-//! it) moved by at most a cell still keeps the live map's cell where the rebuild saw it only
-//! from afar ([`CellSource::Closer`]): the one close view of a cell away from the path may be
-//! among the sweeps the store thinned away.
+//! rendering cost more than that (with half a cell the second swap put trees 0.2-0.5 m off).
+//! Inside that mask (grown by `grow` cells, the neighbourhoods the step rule and the costs
+//! read) a cell is the rebuilt map's only where the correction moved its own kept returns (or,
+//! with none, those within two cells) by more than the tolerance, sideways or apart
+//! vertically; every other cell keeps the live map's evidence (every sweep, not one in six),
+//! raised or lowered by the mean vertical move of its returns, so that it meets the rebuilt
+//! cells without a step. A cell's returns and its neighbours' come from the same sweeps and
+//! move alike, so a kept cell's verdict still agrees with its rebuilt neighbours. Kept returns
+//! count for a cell only if the live map could have taken them there ([`CellMoves::add`]).
 //!
 //! The moves are gathered sweep by sweep as the rebuild feeds them ([`CellMoves::add`], a few a
 //! tick like the rebuild itself: the whole store at once took 0.65 s in one sweep on `loop`)
@@ -96,15 +96,8 @@ impl CellMoves {
     }
 
     /// Gathers how a kept sweep's returns move from where the live map has them to where the
-    /// rebuild puts them. `far_view_m` gives, per cell, the farthest a return may be from the
-    /// sensor and still have entered the live map's cell ([`mapping::Mapper::far_view_m`]):
-    /// one from farther, skipped for a closer view, moves nothing there.
-    pub fn add(
-        &mut self,
-        r: &Remap,
-        base_from_lidar: &Isometry3<f64>,
-        far_view_m: impl Fn(i64, i64) -> f32,
-    ) {
+    /// rebuild puts them.
+    pub fn add(&mut self, r: &Remap, base_from_lidar: &Isometry3<f64>) {
         let delta = (r.map_from_base * r.live_from_base.inverse()).cast::<f32>();
         let map_from_lidar = (r.live_from_base * base_from_lidar).cast::<f32>();
         let tol2 = (self.tol_m * self.tol_m) as f32;
@@ -115,17 +108,12 @@ impl CellMoves {
         let mut last_seed: Option<(i64, i64)> = None;
         let mut tiles: Vec<(TileIndex, Vec<DzAcc>)> = Vec::new();
         for q in &r.points {
-            let range2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2];
-            if range2 > near2 {
+            if q[0] * q[0] + q[1] * q[1] + q[2] * q[2] > near2 {
                 continue;
             }
             let p = map_from_lidar * Point3::new(q[0], q[1], q[2]);
-            let c = self.lattice.cell_of(f64::from(p.x), f64::from(p.y));
-            let far = far_view_m(c.0, c.1);
-            if range2 > far * far {
-                continue;
-            }
             let d = delta * p - p;
+            let c = self.lattice.cell_of(f64::from(p.x), f64::from(p.y));
             if d.xy().norm_squared() > tol2 {
                 let m = p + d;
                 // Returns in sweep order mostly fall in the cell of the one before.
@@ -188,36 +176,39 @@ impl CellMoves {
             } else {
                 (sum / f64::from(count)) as f32
             };
-            let side = acc.iter().map(|a| a.side).fold(f32::NAN, f32::max);
+            let side_max = acc.iter().map(|a| a.side).fold(0.0, f32::max);
             dz.insert(
                 t,
                 TileMoves {
                     dz: acc.iter().map(DzAcc::mean).collect(),
                     dz_mean: mean,
-                    side: acc
-                        .iter()
-                        .map(|a| if a.n > 0 { a.side } else { f32::NAN })
-                        .collect(),
-                    side_max: side,
+                    side_max,
                 },
             );
         }
-        let seeds: Vec<(i64, i64)> = self.seeds.into_iter().collect();
+        let list: Vec<(i64, i64)> = self.seeds.iter().copied().collect();
         CellCorrection {
-            stale: CellMask::grown(&seeds, grow, max_cells),
+            stale: CellMask::grown(&list, grow, max_cells),
+            seeds: self.seeds,
             dz,
             lattice: self.lattice,
+            tol_m: self.tol_m,
         }
     }
 }
 
 /// What a correction does to the live map's cells ([`CellMoves::finish`]).
 pub struct CellCorrection {
-    /// The cells to rebuild (None: every cell of the stale tiles).
+    /// The cells within reach of a move (None: every cell of the stale tiles).
     stale: Option<CellMask>,
+    /// The cells a return moved sideways by more than the tolerance left or reached, and those
+    /// whose returns moved apart vertically by more than it.
+    seeds: HashSet<(i64, i64)>,
     /// Per stale tile, the moves of its cells' kept returns.
     dz: HashMap<TileIndex, TileMoves>,
     lattice: Lattice,
+    /// A cell whose returns moved by more than this is the rebuilt map's, metres.
+    tol_m: f64,
 }
 
 /// The moves of one stale tile's kept returns, per cell row-major, metres (NaN: no return fell
@@ -227,21 +218,13 @@ struct TileMoves {
     dz: Vec<f32>,
     /// The mean of `dz` over the cells that have one.
     dz_mean: f32,
-    /// Largest sideways move.
-    side: Vec<f32>,
-    /// The largest of `side` (NaN: none).
+    /// The largest sideways move of its returns.
     side_max: f32,
 }
 
 /// How far a cell without kept returns looks for cells that have some, cells: the step rule's
 /// neighbourhood (it is set against those).
 const DZ_REACH: i64 = 2;
-
-/// Sideways move, in cells, up to which a stale cell may keep the live map's cell where the
-/// rebuild saw it only from afar ([`CellSource::Closer`]): the live cell is then at most a cell
-/// off, less than what a lost close view costs (a tree's ring rendered from one side, canopy
-/// returns taken for an obstacle).
-const CLOSER_MAX_SIDE_CELLS: f64 = 1.0;
 
 impl CellCorrection {
     /// The cell is to be rebuilt.
@@ -280,41 +263,40 @@ impl CellCorrection {
         f64::from(t.dz_mean)
     }
 
-    /// The largest sideways move of the kept returns in the cell, or within [`DZ_REACH`] of it
-    /// when none fell in it, or in its tile, metres (infinity: none in its tile).
-    pub fn side_m(&self, cx: i64, cy: i64) -> f64 {
-        let Some(t) = self.tile(cx, cy) else {
-            return f64::INFINITY;
-        };
-        let mut side = f32::NAN;
-        for reach in [0, DZ_REACH] {
-            self.around(cx, cy, reach, |m, k| m.side[k], |s| side = side.max(s));
-            if side.is_finite() {
-                return f64::from(side);
-            }
-        }
-        if t.side_max.is_finite() {
-            f64::from(t.side_max)
-        } else {
-            f64::INFINITY
-        }
-    }
-
-    /// Which map the cell takes at the swap: the live map's outside the stale cells; inside
-    /// them the rebuilt map's, unless the correction moved the evidence around it sideways by
-    /// at most [`CLOSER_MAX_SIDE_CELLS`] and the rebuild saw the cell only from afar
-    /// ([`CellSource::Closer`]).
+    /// Which map the cell takes at the swap. Within reach of a move ([`Self::is_stale`]) the
+    /// rebuilt map's where a return moved by more than the tolerance left or reached the cell
+    /// or its returns moved apart vertically by more than it, or, for a cell no kept return fell
+    /// in, where that holds within [`DZ_REACH`] of it (or, none there either, anywhere in its
+    /// tile); every other cell is the live map's, its heights moved by [`Self::dz_m`].
     pub fn source(&self, cx: i64, cy: i64) -> CellSource {
-        if !self.is_stale(cx, cy) {
+        if self.is_stale(cx, cy) && self.moved(cx, cy) {
+            CellSource::Rebuilt
+        } else {
             CellSource::Live {
                 dz_m: self.dz_m(cx, cy),
             }
-        } else if self.side_m(cx, cy) <= CLOSER_MAX_SIDE_CELLS * self.lattice.cell_size_f64() {
-            CellSource::Closer {
-                dz_m: self.dz_m(cx, cy),
-            }
+        }
+    }
+
+    fn moved(&self, cx: i64, cy: i64) -> bool {
+        if self.seeds.contains(&(cx, cy)) {
+            return true;
+        }
+        let Some(t) = self.tile(cx, cy) else {
+            return true;
+        };
+        let mut own = false;
+        self.around(cx, cy, 0, |m, k| m.dz[k], |_| own = true);
+        if own {
+            return false;
+        }
+        let mut near = false;
+        self.around(cx, cy, DZ_REACH, |m, k| m.dz[k], |_| near = true);
+        if near {
+            (-DZ_REACH..=DZ_REACH)
+                .any(|dy| (-DZ_REACH..=DZ_REACH).any(|dx| self.seeds.contains(&(cx + dx, cy + dy))))
         } else {
-            CellSource::Rebuilt
+            f64::from(t.side_max) > self.tol_m
         }
     }
 
@@ -389,7 +371,7 @@ mod tests {
     ) -> CellCorrection {
         let mut m = CellMoves::new(LATTICE, st.min_move_m(), st.near_range_m());
         for r in st.after(None, usize::MAX) {
-            m.add(&r, blf, |_, _| f32::INFINITY);
+            m.add(&r, blf);
         }
         m.finish(&all_tiles(), grow, max_cells)
     }
@@ -446,33 +428,7 @@ mod tests {
     }
 
     #[test]
-    fn a_return_too_far_to_have_entered_the_live_cell_moves_nothing_there() {
-        let blf = Isometry3::identity();
-        let mut st = SweepStore::new(0.5, 0.05, 30.0, 100.0);
-        let p = se3::from_xyz_rpy([0.0; 3], [0.0; 3]);
-        st.offer(0.0, &p, &p, &[pt(1.1), pt(25.1)], false);
-        st.correct(|_| Some(se3::from_xyz_rpy([0.0, 0.3, 0.0], [0.0; 3])), None);
-        // The live map saw the far cell from 5 m: returns from beyond 11 m were skipped there.
-        let (fx, _) = LATTICE.cell_of(25.1, 0.0);
-        let mut m = CellMoves::new(LATTICE, st.min_move_m(), st.near_range_m());
-        for r in st.after(None, usize::MAX) {
-            m.add(
-                &r,
-                &blf,
-                |cx, _| if cx == fx { 11.0 } else { f32::INFINITY },
-            );
-        }
-        let cells = m.finish(&all_tiles(), 0, 1 << 20);
-        let stale = |x: f64| {
-            let (cx, cy) = LATTICE.cell_of(x, 0.0);
-            cells.is_stale(cx, cy)
-        };
-        assert!(stale(1.1), "the near return moved 1.5 cells");
-        assert!(!stale(25.1), "the far one did not shape its cell");
-    }
-
-    #[test]
-    fn a_stale_cell_moved_by_at_most_a_cell_may_keep_a_closer_view() {
+    fn inside_the_mask_only_cells_whose_returns_moved_by_more_than_a_cell_are_rebuilt() {
         let blf = Isometry3::identity();
         let mut st = SweepStore::new(0.5, 0.05, 30.0, 100.0);
         let p = |x: f64| se3::from_xyz_rpy([x, 0.0, 0.0], [0.0; 3]);
@@ -490,7 +446,10 @@ mod tests {
         };
         let (stale, source) = at(5.1);
         assert!(stale, "two cells from a return moved by more than a cell");
-        assert!(matches!(source, CellSource::Closer { dz_m } if (dz_m - 0.04).abs() < 1e-4));
+        assert!(
+            matches!(source, CellSource::Live { dz_m } if (dz_m - 0.04).abs() < 1e-4),
+            "its own return moved by under a cell: the live cell, 4 cm up"
+        );
         assert_eq!(at(5.5), (true, CellSource::Rebuilt), "moved 1.5 cells");
         assert_eq!(
             at(5.3),

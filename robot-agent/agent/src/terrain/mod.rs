@@ -260,9 +260,7 @@ impl TerrainMap {
         };
         for r in kept.after(sh.fed_until, n) {
             sh.follow_frames_before(r.t_s, radius_m);
-            let live = &self.mapper;
-            sh.moves
-                .add(&r, base_from_lidar, |cx, cy| live.far_view_m(cx, cy));
+            sh.moves.add(&r, base_from_lidar);
             match map_kept(&mut sh.mapper, &r, base_from_lidar) {
                 Ok(u) => self.cleared_cells += u.cleared_cells,
                 Err(e) => {
@@ -301,14 +299,14 @@ impl TerrainMap {
             |cx, cy| cells.source(cx, cy),
         );
         tracing::info!(
-            "map rebuild swapped in at {t_s:.2} s: {} kept sweeps fed since {:.2} s, {} of {held} tiles replaced, {} of their cells rebuilt ({} of those kept the live cell, seen from closer), {thinned} sweeps kept meanwhile thinned to the spacing",
+            "map rebuild swapped in at {t_s:.2} s: {} kept sweeps fed since {:.2} s, {} of {held} tiles replaced, {} of their cells within reach of a move, {} of those rebuilt, {thinned} sweeps kept meanwhile thinned to the spacing",
             sh.fed,
             sh.started_s,
             r.tiles.len(),
             cells
                 .stale_cells()
                 .map_or_else(|| "all".to_string(), |n| n.to_string()),
-            r.kept_closer,
+            r.rebuilt_cells,
         );
         self.rebuilds += 1;
         Ok(r.tiles)

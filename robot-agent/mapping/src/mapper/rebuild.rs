@@ -38,9 +38,9 @@ impl Mapper {
     /// [`Mapper::replace_tiles_with`] where, inside a stale tile, `source` says per cell
     /// (global cell indices) which map's cell it takes ([`CellSource`]). A cell kept from this
     /// map keeps its evidence, verdict and stamp, its heights moved by the vertical part of the
-    /// correction there. The tile is still published again. The caller's rebuilt cells must
-    /// take in the neighbourhoods classification and costs read, so that a kept cell's verdict
-    /// does not lean on a cell the rebuild changed.
+    /// correction there. The tile is still published again. A kept cell's verdict and cost were
+    /// made with this map's neighbours: the caller keeps a cell only where the correction moved
+    /// its evidence and its neighbours' so little that the rebuilt neighbours agree with them.
     pub fn replace_cells_with(
         &mut self,
         mut rebuilt: Mapper,
@@ -49,12 +49,11 @@ impl Mapper {
         source: impl Fn(i64, i64) -> CellSource,
     ) -> Replaced {
         let min_points = self.rules.min_points();
-        let far_factor = self.cfg.far_evidence_factor as f32;
         let lattice = self.lattice;
-        let mut kept_closer = 0;
-        let mut keep = |to: &mut TileSlot, from: &TileSlot| {
-            kept_closer += keep_cells(to, from, &lattice, &source, far_factor, min_points);
+        let keep = |to: &mut TileSlot, from: &TileSlot| {
+            keep_cells(to, from, &lattice, &source, min_points)
         };
+        let mut rebuilt_cells = 0;
         let stamp = super::evidence::stamp_of(t_s);
         let n = lattice.tile_cells as usize;
         let mut own: Vec<Option<TileSlot>> = self.slots.drain(..).map(Some).collect();
@@ -69,8 +68,9 @@ impl Mapper {
             for c in s.live.iter_mut().filter(|c| c.state != CellState::Unknown) {
                 c.stamp_s = c.stamp_s.max(stamp);
             }
-            if let Some(o) = self.slot_of.get(&s.index).and_then(|&i| own[i].take()) {
-                keep(&mut s, &o);
+            match self.slot_of.get(&s.index).and_then(|&i| own[i].take()) {
+                Some(o) => rebuilt_cells += keep(&mut s, &o),
+                None => rebuilt_cells += n * n,
             }
             slots.push(s);
         }
@@ -89,7 +89,7 @@ impl Mapper {
                     held: vec![0; (n * n).div_ceil(64)],
                     changed: false,
                 };
-                keep(&mut fresh, &s);
+                rebuilt_cells += keep(&mut fresh, &s);
                 slots.push(fresh);
             }
         }
@@ -102,8 +102,7 @@ impl Mapper {
             .map(|(i, s)| (s.index, i))
             .collect();
         rebuilt.slots = slots;
-        // Cells this map kept outright that wait to be classified wait on (one a closer view
-        // kept is judged again when next seen).
+        // Cells this map kept that wait to be classified wait on.
         rebuilt
             .pending
             .extend(self.pending.iter().filter(|&&(cx, cy)| {
@@ -121,7 +120,10 @@ impl Mapper {
             .set((TileIndex { tx: 0, ty: 0 }, usize::MAX));
         tiles.sort_unstable();
         *self = rebuilt;
-        Replaced { tiles, kept_closer }
+        Replaced {
+            tiles,
+            rebuilt_cells,
+        }
     }
 }
 
@@ -135,17 +137,6 @@ pub enum CellSource {
     },
     /// The rebuilt map's cell.
     Rebuilt,
-    /// The rebuilt map's cell, unless the rebuild saw the cell only from afar where this map
-    /// saw it from close, or not at all: then this map's, as [`CellSource::Live`]. "From afar"
-    /// is the mapper's own rule for when a far view may not overwrite a close one (§4.3):
-    /// farther than `far_evidence_factor` times this map's closest view plus 1 m. The rebuild
-    /// maps one sweep in several, and the one close view of a cell away from the path may not
-    /// be among them; the caller offers this where the correction moved the cell's evidence by
-    /// little, so that this map's cell is the smaller error.
-    Closer {
-        /// Vertical part of the correction at the cell, metres.
-        dz_m: f64,
-    },
 }
 
 /// What [`Mapper::replace_cells_with`] did.
@@ -153,43 +144,27 @@ pub enum CellSource {
 pub struct Replaced {
     /// Every tile to publish again, sorted.
     pub tiles: Vec<TileIndex>,
-    /// Cells offered as [`CellSource::Closer`] that kept this map's cell.
-    pub kept_closer: usize,
+    /// Cells of the stale tiles that are the rebuilt map's.
+    pub rebuilt_cells: usize,
 }
 
 /// Copies into `to` (the rebuilt tile) the cells of `from` (this map's, the same tile) that
-/// `source` keeps, their heights moved; returns how many [`CellSource::Closer`] kept.
+/// `source` keeps, their heights moved; returns how many it left to the rebuilt map.
 fn keep_cells(
     to: &mut TileSlot,
     from: &TileSlot,
     lattice: &common::grid::Lattice,
     source: impl Fn(i64, i64) -> CellSource,
-    far_factor: f32,
     min_points: u32,
 ) -> usize {
     let n = lattice.tile_cells as usize;
     let (cx0, cy0) = lattice.tile_first_cell(to.index);
-    let mut kept_closer = 0;
+    let mut rebuilt = 0;
     for k in 0..n * n {
         let (cx, cy) = (cx0 + (k % n) as i64, cy0 + (k / n) as i64);
-        let dz = match source(cx, cy) {
-            CellSource::Rebuilt => continue,
-            CellSource::Live { dz_m } => dz_m,
-            CellSource::Closer { dz_m } => {
-                let live = from.data[k].closest_view_m();
-                let rebuilt = to.data[k].closest_view_m();
-                let saw_less = if rebuilt.is_finite() {
-                    rebuilt > far_factor * live + 1.0
-                } else {
-                    // No evidence: unseen, or seen empty by the beams (which stands).
-                    to.live[k].state == CellState::Unknown
-                };
-                if !(live.is_finite() && saw_less) {
-                    continue;
-                }
-                kept_closer += 1;
-                dz_m
-            }
+        let CellSource::Live { dz_m: dz } = source(cx, cy) else {
+            rebuilt += 1;
+            continue;
         };
         to.data[k] = from.data[k];
         to.ground[k] = from.ground[k];
@@ -209,14 +184,13 @@ fn keep_cells(
             to.held[k >> 6] &= !bit;
         }
     }
-    kept_closer
+    rebuilt
 }
 
 #[cfg(test)]
 mod tests {
     use crate::synth::{cast_scan, LidarSpec, Rng};
     use crate::{CellSource, Class, Config, Mapper, RobotPose};
-    use common::grid::CellState;
 
     /// Flat ground with a 1 m box at (6, 0).
     fn world(x: f64, y: f64) -> f64 {
@@ -229,11 +203,6 @@ mod tests {
 
     /// Maps a drive along y = 0 whose sweeps are placed `offset_y` off (a drifted pose).
     fn mapped(offset_y: f64) -> Mapper {
-        mapped_from(offset_y, 0..6)
-    }
-
-    /// [`mapped`] with the sweeps at these x only (metres).
-    fn mapped_from(offset_y: f64, xs: std::ops::Range<i32>) -> Mapper {
         let spec = LidarSpec {
             az_step_deg: 0.4,
             max_range_m: 20.0,
@@ -241,7 +210,7 @@ mod tests {
         };
         let mut m = Mapper::new(Config::default()).unwrap();
         let mut rng = Rng::new(3);
-        for i in xs {
+        for i in 0..6 {
             let x = f64::from(i);
             let mut pts = cast_scan(&world, [x, 0.0, 0.7], &spec, &mut rng);
             for p in &mut pts {
@@ -315,21 +284,26 @@ mod tests {
         // the rebuilt one comes in.
         let (_, split) = l.cell_of(0.0, 0.5);
         // The kept cells move up 5 cm.
-        let tiles = drifted
-            .replace_cells_with(
-                mapped(0.0),
-                17.0,
-                |t| t == box_tile,
-                |_, cy| {
-                    if cy < split {
-                        CellSource::Rebuilt
-                    } else {
-                        CellSource::Live { dz_m: 0.05 }
-                    }
-                },
-            )
-            .tiles;
-        assert_eq!(tiles, vec![box_tile], "the mixed tile goes out again");
+        let r = drifted.replace_cells_with(
+            mapped(0.0),
+            17.0,
+            |t| t == box_tile,
+            |_, cy| {
+                if cy < split {
+                    CellSource::Rebuilt
+                } else {
+                    CellSource::Live { dz_m: 0.05 }
+                }
+            },
+        );
+        assert_eq!(r.tiles, vec![box_tile], "the mixed tile goes out again");
+        let n = i64::from(l.tile_cells);
+        let rows = (split - l.tile_first_cell(box_tile).1).clamp(0, n);
+        assert_eq!(
+            r.rebuilt_cells as i64,
+            n * rows,
+            "the rows south of the split"
+        );
         assert_eq!(obstacles_in(&drifted, north.0, north.1), drifted_north);
         assert!(
             obstacles_in(&drifted, south.0, south.1) > 0,
@@ -355,53 +329,6 @@ mod tests {
         assert_eq!(now.height_cm, was.height_cm + 5, "and moves up 5 cm");
         let (sx, sy) = l.cell_of(3.0, 0.1);
         assert_eq!(drifted.cell(sx, sy).stamp_s, 17, "a rebuilt cell");
-    }
-
-    #[test]
-    fn a_cell_the_rebuild_saw_only_from_afar_keeps_the_close_view() {
-        // The live map drove up to the box; the rebuild has the first two sweeps only, the
-        // nearer 4.5 m from the box's face.
-        let mut live = mapped(0.0);
-        let l = live.lattice();
-        let (fx, fy) = l.cell_of(5.55, 0.1);
-        // A ground cell the first sweeps' rings hit 2.6-4 m out: the live map's closest view of
-        // it is no nearer than the lowest ring's 2.6 m.
-        let first = mapped_from(0.0, 0..2);
-        let (gx, gy) = (0..12)
-            .map(|i| l.cell_of(3.6 + 0.1 * f64::from(i), 0.1))
-            .find(|&(cx, cy)| first.cell(cx, cy).state != CellState::Unknown)
-            .expect("a ring on the ground");
-        let face = live.cell(fx, fy);
-        assert_eq!(live.class(fx, fy), Class::Obstacle);
-        let closer = |_, _| CellSource::Closer { dz_m: 0.02 };
-        let r = live.replace_cells_with(first, 17.0, |_| true, closer);
-        let now = live.cell(fx, fy);
-        assert_eq!(
-            (now.state, now.stamp_s, now.hits),
-            (face.state, face.stamp_s, face.hits),
-            "the face seen from 0.5 m keeps the live cell"
-        );
-        assert_eq!(
-            now.height_cm,
-            face.height_cm + 2,
-            "moved up with the correction"
-        );
-        assert_eq!(
-            live.cell(gx, gy).stamp_s,
-            17,
-            "the ground both saw from about 3 m is the rebuilt map's"
-        );
-        assert!(r.kept_closer > 0);
-        // Offered the rebuilt cell outright, the face is the rebuild's.
-        let mut live = mapped(0.0);
-        let r = live.replace_cells_with(
-            mapped_from(0.0, 0..2),
-            17.0,
-            |_| true,
-            |_, _| CellSource::Rebuilt,
-        );
-        assert_eq!(live.cell(fx, fy).stamp_s, 17);
-        assert_eq!(r.kept_closer, 0);
     }
 
     #[test]
