@@ -11,13 +11,13 @@
 //! less than a cell stays in its cell or the next, and on `loop` the thinned rebuild's
 //! rendering cost more than that (with half a cell the second swap put trees 0.2-0.5 m off).
 //! Inside that mask (grown by `grow` cells, the neighbourhoods the step rule and the costs
-//! read) a cell is the rebuilt map's only where the correction moved its own kept returns (or,
-//! with none, those within two cells) by more than the tolerance, sideways or apart
-//! vertically; every other cell keeps the live map's evidence (every sweep, not one in six),
-//! raised or lowered by the mean vertical move of its returns, so that it meets the rebuilt
-//! cells without a step. A cell's returns and its neighbours' come from the same sweeps and
-//! move alike, so a kept cell's verdict still agrees with its rebuilt neighbours. Kept returns
-//! count for a cell only if the live map could have taken them there ([`CellMoves::add`]).
+//! read) a cell is the rebuilt map's only where a kept return moved by more than the tolerance
+//! left or reached it, or its returns moved apart vertically by more than it (or, for a cell no
+//! kept return fell in, where that holds within two cells; [`CellCorrection::source`]). Every
+//! other cell keeps the live map's evidence (every sweep, not one in six), raised or lowered by
+//! the mean vertical move of its returns, so that it meets the rebuilt cells without a step. A
+//! cell's returns and its neighbours' come from the same sweeps and move alike, so a kept
+//! cell's verdict still agrees with its rebuilt neighbours.
 //!
 //! The moves are gathered sweep by sweep as the rebuild feeds them ([`CellMoves::add`], a few a
 //! tick like the rebuild itself: the whole store at once took 0.65 s in one sweep on `loop`)
@@ -278,6 +278,7 @@ impl CellCorrection {
         }
     }
 
+    /// See [`Self::source`].
     fn moved(&self, cx: i64, cy: i64) -> bool {
         if self.seeds.contains(&(cx, cy)) {
             return true;
