@@ -37,6 +37,4 @@ mod tests_far_view;
 
 pub use classify::Class;
 pub use config::{Config, ConfigError, IsolatedPair};
-pub use mapper::{
-    CellSource, Evidence, MapError, Mapper, PlannerView, Replaced, RobotPose, UpdateReport,
-};
+pub use mapper::{Evidence, MapError, Mapper, PlannerView, Replaced, RobotPose, UpdateReport};

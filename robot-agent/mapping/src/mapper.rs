@@ -27,7 +27,7 @@ mod inflation;
 mod inspect;
 mod negative_obstacles;
 mod rebuild;
-pub use rebuild::{CellSource, Replaced};
+pub use rebuild::Replaced;
 mod reclassify;
 mod view;
 mod window;

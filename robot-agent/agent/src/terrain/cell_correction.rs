@@ -13,7 +13,7 @@
 //! Inside that mask (grown by `grow` cells, the neighbourhoods the step rule and the costs
 //! read) a cell is the rebuilt map's only where a kept return moved by more than the tolerance
 //! left or reached it, or its returns moved apart vertically by more than it (or, for a cell no
-//! kept return fell in, where that holds within two cells; [`CellCorrection::source`]). Every
+//! kept return fell in, where that holds within two cells; [`CellCorrection::is_rebuilt`]). Every
 //! other cell keeps the live map's evidence (every sweep, not one in six), raised or lowered by
 //! the mean vertical move of its returns, so that it meets the rebuilt cells without a step. A
 //! cell's returns and its neighbours' come from the same sweeps and move alike, so a kept
@@ -26,7 +26,6 @@
 use super::cell_mask::CellMask;
 use super::rebuild::Remap;
 use common::grid::{Lattice, TileIndex};
-use mapping::CellSource;
 use nalgebra::{Isometry3, Point3};
 use std::collections::{HashMap, HashSet};
 
@@ -263,23 +262,16 @@ impl CellCorrection {
         f64::from(t.dz_mean)
     }
 
-    /// Which map the cell takes at the swap. Within reach of a move ([`Self::is_stale`]) the
-    /// rebuilt map's where a return moved by more than the tolerance left or reached the cell
-    /// or its returns moved apart vertically by more than it, or, for a cell no kept return fell
-    /// in, where that holds within [`DZ_REACH`] of it (or, none there either, anywhere in its
-    /// tile); every other cell is the live map's, its heights moved by [`Self::dz_m`].
-    pub fn source(&self, cx: i64, cy: i64) -> CellSource {
-        if self.is_stale(cx, cy) && self.moved(cx, cy) {
-            CellSource::Rebuilt
-        } else {
-            CellSource::Live {
-                dz_m: self.dz_m(cx, cy),
-            }
+    /// The cell takes the rebuilt map's at the swap: within reach of a move
+    /// ([`Self::is_stale`]), where a return moved by more than the tolerance left or reached
+    /// the cell or its returns moved apart vertically by more than it, or, for a cell no kept
+    /// return fell in, where that holds within [`DZ_REACH`] of it (or, none there either,
+    /// anywhere in its tile). Every other cell is the live map's, its heights moved by
+    /// [`Self::dz_m`].
+    pub fn is_rebuilt(&self, cx: i64, cy: i64) -> bool {
+        if !self.is_stale(cx, cy) {
+            return false;
         }
-    }
-
-    /// See [`Self::source`].
-    fn moved(&self, cx: i64, cy: i64) -> bool {
         if self.seeds.contains(&(cx, cy)) {
             return true;
         }
@@ -443,21 +435,22 @@ mod tests {
         let cells = correction(&st, &blf, 2, 1 << 20);
         let at = |x: f64| {
             let (cx, cy) = LATTICE.cell_of(x, 0.0);
-            (cells.is_stale(cx, cy), cells.source(cx, cy))
+            (cells.is_stale(cx, cy), cells.is_rebuilt(cx, cy))
         };
-        let (stale, source) = at(5.1);
-        assert!(stale, "two cells from a return moved by more than a cell");
-        assert!(
-            matches!(source, CellSource::Live { dz_m } if (dz_m - 0.04).abs() < 1e-4),
-            "its own return moved by under a cell: the live cell, 4 cm up"
+        assert_eq!(
+            at(5.1),
+            (true, false),
+            "two cells from a return moved by more than a cell, its own moved by under one: live"
         );
-        assert_eq!(at(5.5), (true, CellSource::Rebuilt), "moved 1.5 cells");
+        let (cx, cy) = LATTICE.cell_of(5.1, 0.0);
+        assert!((cells.dz_m(cx, cy) - 0.04).abs() < 1e-4, "4 cm up");
+        assert_eq!(at(5.5), (true, true), "moved 1.5 cells");
         assert_eq!(
             at(5.3),
-            (true, CellSource::Rebuilt),
+            (true, true),
             "no return of its own, one beside it moved 1.5 cells"
         );
-        assert!(matches!(at(4.3), (false, CellSource::Live { .. })));
+        assert_eq!(at(4.3), (false, false));
     }
 
     #[test]

@@ -296,7 +296,8 @@ impl TerrainMap {
             sh.mapper,
             t_s,
             |t| stale.contains(&t),
-            |cx, cy| cells.source(cx, cy),
+            |cx, cy| cells.is_rebuilt(cx, cy),
+            |cx, cy| cells.dz_m(cx, cy),
         );
         tracing::info!(
             "map rebuild swapped in at {t_s:.2} s: {} kept sweeps fed since {:.2} s, {} of {held} tiles replaced, {} of their cells within reach of a move, {} of those rebuilt, {thinned} sweeps kept meanwhile thinned to the spacing",

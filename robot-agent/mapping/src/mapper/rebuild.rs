@@ -31,14 +31,14 @@ impl Mapper {
         t_s: f64,
         stale: impl Fn(TileIndex) -> bool,
     ) -> Vec<TileIndex> {
-        self.replace_cells_with(rebuilt, t_s, stale, |_, _| CellSource::Rebuilt)
+        self.replace_cells_with(rebuilt, t_s, stale, |_, _| true, |_, _| 0.0)
             .tiles
     }
 
-    /// [`Mapper::replace_tiles_with`] where, inside a stale tile, `source` says per cell
-    /// (global cell indices) which map's cell it takes ([`CellSource`]). A cell kept from this
-    /// map keeps its evidence, verdict and stamp, its heights moved by the vertical part of the
-    /// correction there. The tile is still published again. A kept cell's verdict and cost were
+    /// [`Mapper::replace_tiles_with`] where, inside a stale tile, only the cells `rebuilt_cell`
+    /// says (global cell indices) are the rebuilt map's: the others keep this map's evidence,
+    /// verdicts and stamps, their heights moved by `dz_of` metres (the vertical part of the
+    /// correction there). The tile is still published again. A kept cell's verdict and cost were
     /// made with this map's neighbours: the caller keeps a cell only where the correction moved
     /// its evidence and its neighbours' so little that the rebuilt neighbours agree with them.
     pub fn replace_cells_with(
@@ -46,12 +46,13 @@ impl Mapper {
         mut rebuilt: Mapper,
         t_s: f64,
         stale: impl Fn(TileIndex) -> bool,
-        source: impl Fn(i64, i64) -> CellSource,
+        rebuilt_cell: impl Fn(i64, i64) -> bool,
+        dz_of: impl Fn(i64, i64) -> f64,
     ) -> Replaced {
         let min_points = self.rules.min_points();
         let lattice = self.lattice;
         let keep = |to: &mut TileSlot, from: &TileSlot| {
-            keep_cells(to, from, &lattice, &source, min_points)
+            keep_cells(to, from, &lattice, &rebuilt_cell, &dz_of, min_points)
         };
         let mut rebuilt_cells = 0;
         let stamp = super::evidence::stamp_of(t_s);
@@ -103,12 +104,11 @@ impl Mapper {
             .collect();
         rebuilt.slots = slots;
         // Cells this map kept that wait to be classified wait on.
-        rebuilt
-            .pending
-            .extend(self.pending.iter().filter(|&&(cx, cy)| {
-                !stale(lattice.tile_of_cell(cx, cy).0)
-                    || matches!(source(cx, cy), CellSource::Live { .. })
-            }));
+        rebuilt.pending.extend(
+            self.pending.iter().filter(|&&(cx, cy)| {
+                !stale(lattice.tile_of_cell(cx, cy).0) || !rebuilt_cell(cx, cy)
+            }),
+        );
         rebuilt.last_t_s = match (self.last_t_s, rebuilt.last_t_s) {
             (Some(a), Some(b)) => Some(a.max(b)),
             (a, b) => a.or(b),
@@ -127,18 +127,6 @@ impl Mapper {
     }
 }
 
-/// Which map a cell of a stale tile takes at a swap ([`Mapper::replace_cells_with`]).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum CellSource {
-    /// This map's cell, its heights moved.
-    Live {
-        /// Vertical part of the correction at the cell, metres.
-        dz_m: f64,
-    },
-    /// The rebuilt map's cell.
-    Rebuilt,
-}
-
 /// What [`Mapper::replace_cells_with`] did.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Replaced {
@@ -149,12 +137,14 @@ pub struct Replaced {
 }
 
 /// Copies into `to` (the rebuilt tile) the cells of `from` (this map's, the same tile) that
-/// `source` keeps, their heights moved; returns how many it left to the rebuilt map.
+/// `rebuilt_cell` does not claim, their heights moved by `dz_of`; returns how many it left to
+/// the rebuilt map.
 fn keep_cells(
     to: &mut TileSlot,
     from: &TileSlot,
     lattice: &common::grid::Lattice,
-    source: impl Fn(i64, i64) -> CellSource,
+    rebuilt_cell: impl Fn(i64, i64) -> bool,
+    dz_of: impl Fn(i64, i64) -> f64,
     min_points: u32,
 ) -> usize {
     let n = lattice.tile_cells as usize;
@@ -162,16 +152,17 @@ fn keep_cells(
     let mut rebuilt = 0;
     for k in 0..n * n {
         let (cx, cy) = (cx0 + (k % n) as i64, cy0 + (k / n) as i64);
-        let CellSource::Live { dz_m: dz } = source(cx, cy) else {
+        if rebuilt_cell(cx, cy) {
             rebuilt += 1;
             continue;
-        };
+        }
         to.data[k] = from.data[k];
         to.ground[k] = from.ground[k];
         to.live[k] = from.live[k];
         let bit = 1u64 << (k & 63);
         if from.held[k >> 6] & bit != 0 {
             to.held[k >> 6] |= bit;
+            let dz = dz_of(cx, cy);
             if dz != 0.0 && dz.is_finite() {
                 let d = &mut to.data[k];
                 d.shift_heights(dz);
@@ -190,7 +181,7 @@ fn keep_cells(
 #[cfg(test)]
 mod tests {
     use crate::synth::{cast_scan, LidarSpec, Rng};
-    use crate::{CellSource, Class, Config, Mapper, RobotPose};
+    use crate::{Class, Config, Mapper, RobotPose};
 
     /// Flat ground with a 1 m box at (6, 0).
     fn world(x: f64, y: f64) -> f64 {
@@ -288,13 +279,8 @@ mod tests {
             mapped(0.0),
             17.0,
             |t| t == box_tile,
-            |_, cy| {
-                if cy < split {
-                    CellSource::Rebuilt
-                } else {
-                    CellSource::Live { dz_m: 0.05 }
-                }
-            },
+            |_, cy| cy < split,
+            |_, _| 0.05,
         );
         assert_eq!(r.tiles, vec![box_tile], "the mixed tile goes out again");
         let n = i64::from(l.tile_cells);
