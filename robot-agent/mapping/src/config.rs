@@ -107,6 +107,13 @@ pub struct Config {
     pub far_evidence_factor: f64,
     /// After this long without accepted evidence a cell takes whatever comes, seconds.
     pub evidence_stale_s: f64,
+    /// A cell with no evidence from within the processing distance for this long belongs to an
+    /// earlier visit: a sweep that sees enough such ground within the processing distance
+    /// measures the old map's height offset from the current frame and moves the earlier
+    /// visit's evidence within reach by it, seconds (0: off).
+    pub revisit_gap_s: f64,
+    /// Fewest such ground cells in one sweep for the offset to be measured.
+    pub revisit_min_cells: usize,
 
     // --- Evidence ---
     /// Length of one evidence epoch, seconds. A cell's statistics are those of its newest two
@@ -181,6 +188,8 @@ impl Default for Config {
             clear_reach_m: 25.0,
             far_evidence_factor: 2.0,
             evidence_stale_s: 3600.0,
+            revisit_gap_s: 30.0,
+            revisit_min_cells: 40,
             evidence_epoch_s: 1.0,
             obstacle_distance_m: 0.4,
             cost_distance_m: 1.2,
@@ -257,6 +266,10 @@ impl Config {
         bad(
             self.evidence_epoch_s > 0.0,
             "evidence_epoch_s must be positive",
+        )?;
+        bad(
+            self.revisit_gap_s >= 0.0 && self.revisit_gap_s.is_finite(),
+            "revisit_gap_s must be 0 (off) or more",
         )?;
         bad(
             self.obstacle_distance_m >= 0.0,

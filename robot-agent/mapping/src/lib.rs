@@ -34,6 +34,8 @@ pub mod synth;
 mod tests;
 #[cfg(test)]
 mod tests_far_view;
+#[cfg(test)]
+mod tests_revisit;
 
 pub use classify::Class;
 pub use config::{Config, ConfigError, IsolatedPair};

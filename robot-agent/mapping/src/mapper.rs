@@ -29,6 +29,7 @@ mod negative_obstacles;
 mod rebuild;
 pub use rebuild::Replaced;
 mod reclassify;
+mod revisit;
 mod view;
 mod window;
 
@@ -138,6 +139,11 @@ pub struct UpdateReport {
     pub cleared_cells: usize,
     /// Cells whose points this sweep were ignored: seen much better from closer before.
     pub far_skipped: usize,
+    /// Ground cells of this sweep that an earlier visit's ground was measured against (0: no
+    /// offset fitted this sweep).
+    pub revisit_pairs: usize,
+    /// An earlier visit's cells moved onto the current frame by the revisit offset.
+    pub revisit_moved: usize,
 }
 
 /// `x.floor() as i64` without a libm call (the default x86-64 target has no SSE4.1 `roundsd`,
@@ -192,6 +198,10 @@ pub struct Mapper {
     robot: Option<RobotPose>,
     /// Frame corrections too small to apply yet (see [`Mapper::follow_frame`]).
     frame_lag: nalgebra::Isometry3<f64>,
+    /// The last revisit's height offset of the old map, and the samples of the last few
+    /// sweeps it is fitted to (see [`Mapper::align_revisit`]).
+    revisit: Option<revisit::RevisitOffset>,
+    revisit_samples: std::collections::VecDeque<revisit::Sample>,
     last_t_s: Option<f64>,
     /// Sorted (distance, dx, dy) offsets within the cost distance, for inflation.
     offsets: Vec<(f64, i64, i64)>,
@@ -227,6 +237,8 @@ impl Mapper {
             scan_id: 0,
             robot: None,
             frame_lag: nalgebra::Isometry3::identity(),
+            revisit: None,
+            revisit_samples: Default::default(),
             last_t_s: None,
             offsets,
             full: false,
@@ -343,8 +355,10 @@ impl Mapper {
         // 1-3. Filters, then binning under the per-cell ceilings.
         self.filter_points(&mut pts, robot, &mut rep);
         self.bin_points(&pts, kind, &mut rep);
-        // Free space first (it wipes what has gone), then the sweep's evidence.
         let mut dirty = Vec::new();
+        // An earlier visit's ground onto the current frame, before anything compares with it.
+        self.align_revisit(robot, t_s, kind, &mut dirty, &mut rep);
+        // Free space first (it wipes what has gone), then the sweep's evidence.
         if sensor.is_some() {
             self.apply_free_space(&mut dirty, &mut rep);
         }

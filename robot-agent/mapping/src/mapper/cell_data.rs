@@ -101,11 +101,17 @@ pub(super) struct CellData {
     pub(super) seen_range_m: f32,
     /// Session time evidence was last accepted into the cell, seconds.
     pub(super) accepted_s: f32,
+    /// Session time the cell's heights were last in the current view's frame: evidence
+    /// accepted from within the processing distance, the robot drove over it, or a revisit's
+    /// offset moved it there, seconds.
+    pub(super) current_s: f32,
     /// Closest robot distance from which this cell was judged a drop-off, metres.
     pub(super) neg_range_m: f32,
     /// Closest robot distance from which the cell's current class was judged, metres.
     pub(super) class_range_m: f32,
     pub(super) epoch: i64,
+    /// The `prev` epoch's index.
+    pub(super) prev_epoch: i64,
     /// Points far above the cell's ground seen in one scan only, waiting for confirmation.
     pub(super) pending: Moments,
     pub(super) pending_scan: u32,
@@ -135,9 +141,11 @@ impl Default for CellData {
             prev_range_m: f32::INFINITY,
             seen_range_m: f32::INFINITY,
             accepted_s: f32::NEG_INFINITY,
+            current_s: f32::NEG_INFINITY,
             neg_range_m: f32::INFINITY,
             class_range_m: f32::INFINITY,
             epoch: 0,
+            prev_epoch: 0,
             pending: Moments::default(),
             pending_scan: 0,
             last_cloud: Moments::default(),
@@ -162,6 +170,33 @@ impl CellData {
         if self.driven {
             self.driven_z += dz as f32;
         }
+    }
+
+    /// The epochs with index `before` or earlier (and the driven height, when `driven_too`)
+    /// moved up by `dz` metres: an earlier visit's evidence onto the current frame.
+    pub(super) fn shift_epochs_before(&mut self, before: i64, dz: f64, driven_too: bool) {
+        if self.cur.n > 0 && self.epoch <= before {
+            self.cur = self.cur.shifted(dz);
+        }
+        if self.prev.n > 0 && self.prev_epoch <= before {
+            self.prev = self.prev.shifted(dz);
+        }
+        if driven_too && self.driven {
+            self.driven_z += dz as f32;
+        }
+    }
+
+    /// The moments of the epochs with index `before` or earlier, and the closest distance they
+    /// were seen from.
+    pub(super) fn epochs_before(&self, before: i64) -> (Moments, f32) {
+        let (mut m, mut r) = (Moments::default(), f32::INFINITY);
+        if self.cur.n > 0 && self.epoch <= before {
+            (m, r) = (self.cur, self.cur_range_m);
+        }
+        if self.prev.n > 0 && self.prev_epoch <= before {
+            (m, r) = (m.merged(&self.prev), r.min(self.prev_range_m));
+        }
+        (m, r)
     }
 
     /// Closest robot distance the cell's evidence was taken from, metres (infinity: it holds

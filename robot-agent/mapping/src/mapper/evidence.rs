@@ -209,8 +209,12 @@ impl Mapper {
                 rep.far_skipped += 1;
                 continue;
             }
+            let close = f64::from(range_m) <= self.cfg.processing_distance_m;
             let d = self.data_mut(cx, cy);
             d.accepted_s = t_s as f32;
+            if close {
+                d.current_s = t_s as f32;
+            }
             let changed = match kind {
                 Evidence::MapCloud => {
                     let m = low.merged(&high);
@@ -244,6 +248,7 @@ impl Mapper {
                         if epoch > d.epoch || d.cur.n == 0 {
                             d.prev = d.cur;
                             d.prev_range_m = d.cur_range_m;
+                            d.prev_epoch = d.epoch;
                             d.cur = Moments::default();
                             d.cur_range_m = f32::INFINITY;
                             d.epoch = epoch;
@@ -309,6 +314,7 @@ impl Mapper {
             if !d.driven || (d.driven_z - robot.z_m as f32).abs() > 0.01 {
                 d.driven = true;
                 d.driven_z = robot.z_m as f32;
+                d.current_s = t_s as f32;
                 d.stamp_s = stamp;
                 self.refresh_ground(cx, cy);
                 dirty.push((cx, cy));

@@ -1,0 +1,306 @@
+//! Revisits (docs/algorithms.md §4.13): ground seen in an earlier visit carries that visit's
+//! heights, and by the time the robot is back its frame has moved under them. GNSS and gravity
+//! corrections move the stored map with the frame ([`Mapper::follow_frame`]), but rigidly, about
+//! wherever the robot was: over a 350 m loop they left the start's ground 8 cm above where the
+//! same frame sees it again. New and old evidence then stand apart by that much in neighbouring
+//! cells, and the step rules read ring-shaped stripes of false steps into open ground.
+//!
+//! So each sweep measures the offset itself. A cell belongs to an earlier visit when nothing
+//! from within the processing distance reached it for `revisit_gap_s` (far glimpses on the way
+//! back do not make it current). The sweep's ground cells within the processing distance that
+//! hold such evidence, in epochs that ended before the gap and were seen from within the
+//! processing distance, give one height difference each, kept for the last few sweeps (the
+//! cells come within reach a few at a time). A plane through them (robust: the median first,
+//! then the cells within three spreads of it) is the old map's offset from the current frame
+//! around the robot; its tilt counts only where the cells pin it, else the median
+//! alone, and an offset within three standard errors of zero is none. The old epochs of every
+//! earlier visit's cell within reach (the processing distance and the rules' neighbourhood) are
+//! moved by it before the sweep is merged, and the cell counts as current from then on. The
+//! plane stays in use for the cells that come within reach in the next sweeps until
+//! `revisit_gap_s` after its last fit.
+
+use super::cell_data::Moments;
+use super::{norm2, Evidence, Mapper, RobotPose, UpdateReport};
+
+/// Offsets smaller than this everywhere within reach are not applied, metres: below what any
+/// step test can tell (`grass_sd_min_m` is 8 mm); the cells still count as current.
+const MIN_SHIFT_M: f64 = 0.005;
+
+/// A fitted plane steeper than this is not trusted, radians (0.17 deg: twice the robot's
+/// usual attitude error, already 3.6 cm at the processing distance).
+const MAX_TILT_RAD: f64 = 0.003;
+
+/// Nor one whose slopes' standard error is larger than this, radians (1.2 cm at the
+/// processing distance): the cells lie on too narrow a strip to pin a tilt.
+const MAX_TILT_SE_RAD: f64 = 0.001;
+
+/// Samples are kept this long for the offset fit, seconds: a few sweeps' worth, so the cells
+/// that come within reach one sweep at a time are enough to follow the offset along the way.
+const SAMPLE_WINDOW_S: f64 = 3.0;
+
+/// One sample of the offset: a ground cell's centre (map frame, metres), its height in the
+/// sweep less the earlier visit's (metres), and the sweep's time (seconds).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Sample {
+    x_m: f64,
+    y_m: f64,
+    dz_m: f64,
+    t_s: f64,
+}
+
+/// The old map's height offset from the current frame: `dz = a + b (x - x0) + c (y - y0)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct RevisitOffset {
+    /// Where the plane was fitted (the robot), map frame, metres.
+    x0: f64,
+    y0: f64,
+    a: f64,
+    b: f64,
+    c: f64,
+    /// Session time of the fit, seconds.
+    t_s: f64,
+}
+
+impl RevisitOffset {
+    fn dz(&self, x: f64, y: f64) -> f64 {
+        self.a + self.b * (x - self.x0) + self.c * (y - self.y0)
+    }
+}
+
+impl Mapper {
+    /// Measures this sweep's offset against an earlier visit's ground and moves that visit's
+    /// cells within reach onto the current frame (see the module docs). Runs after binning and
+    /// before the evidence is merged; the moved cells within the processing distance are pushed
+    /// onto `dirty`.
+    pub(super) fn align_revisit(
+        &mut self,
+        robot: &RobotPose,
+        t_s: f64,
+        kind: Evidence,
+        dirty: &mut Vec<(i64, i64)>,
+        rep: &mut UpdateReport,
+    ) {
+        let gap_s = self.cfg.revisit_gap_s;
+        if kind != Evidence::Scan || gap_s <= 0.0 {
+            return;
+        }
+        self.sample_revisit(robot, t_s);
+        if let Some(fit) = self.fit_revisit(robot, t_s) {
+            rep.revisit_pairs = fit.1;
+            self.revisit = Some(fit.0);
+        }
+        let Some(off) = self.revisit.filter(|o| t_s - o.t_s <= gap_s) else {
+            self.revisit = None;
+            return;
+        };
+        let reach_m = self.cfg.processing_distance_m + 2.0 * self.cfg.grid_size_m;
+        let shift = [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)]
+            .iter()
+            .map(|(sx, sy)| {
+                off.dz(robot.x_m + sx * reach_m, robot.y_m + sy * reach_m)
+                    .abs()
+            })
+            .fold(0.0, f64::max)
+            > MIN_SHIFT_M;
+        let (rcx, rcy) = self.lattice.cell_of(robot.x_m, robot.y_m);
+        let r = (reach_m / self.cfg.grid_size_m).ceil() as i64;
+        let pd = self.cfg.processing_distance_m;
+        let t = t_s as f32;
+        let gap = gap_s as f32;
+        let before = self.epoch_before(t_s);
+        for cy in rcy - r..=rcy + r {
+            for cx in rcx - r..=rcx + r {
+                let (x, y) = self.center_m(cx, cy);
+                let dist = norm2(x - robot.x_m, y - robot.y_m);
+                if dist > reach_m {
+                    continue;
+                }
+                let old = self
+                    .data(cx, cy)
+                    .is_some_and(|d| (d.evidence().n > 0 || d.driven) && t - d.current_s > gap);
+                if !old {
+                    continue;
+                }
+                let d = self.data_mut(cx, cy);
+                d.current_s = t;
+                if shift {
+                    // Only the earlier visit's epochs: far glimpses taken on the way back are
+                    // in the current frame already.
+                    d.shift_epochs_before(before, off.dz(x, y), true);
+                    self.refresh_ground(cx, cy);
+                    rep.revisit_moved += 1;
+                    if dist <= pd {
+                        dirty.push((cx, cy));
+                    }
+                }
+            }
+        }
+    }
+
+    /// The newest evidence epoch that ended more than `revisit_gap_s` before `t_s`.
+    fn epoch_before(&self, t_s: f64) -> i64 {
+        ((t_s - self.cfg.revisit_gap_s) / self.cfg.evidence_epoch_s).floor() as i64 - 1
+    }
+
+    /// Adds this sweep's samples: one per ground cell within the processing distance that
+    /// holds an earlier visit's ground seen from within it too (the height difference, sweep
+    /// minus old epochs), and forgets those older than [`SAMPLE_WINDOW_S`].
+    fn sample_revisit(&mut self, robot: &RobotPose, t_s: f64) {
+        let pd = self.cfg.processing_distance_m;
+        let max_var = self.cfg.max_variance_m2;
+        let min_n = self.rules.min_points();
+        let (t, gap) = (t_s as f32, self.cfg.revisit_gap_s as f32);
+        let before = self.epoch_before(t_s);
+        while self
+            .revisit_samples
+            .front()
+            .is_some_and(|s| t_s - s.t_s > SAMPLE_WINDOW_S)
+        {
+            self.revisit_samples.pop_front();
+        }
+        for &i in &self.win.touched {
+            let low: Moments = self.win.low[i];
+            if low.n < 2 {
+                continue;
+            }
+            let (cx, cy) = self.win.global(i);
+            let (x, y) = self.center_m(cx, cy);
+            if norm2(x - robot.x_m, y - robot.y_m) > pd {
+                continue;
+            }
+            let Some(d) = self.data(cx, cy) else { continue };
+            if t - d.current_s <= gap {
+                continue;
+            }
+            // A far view's heights carry its attitude error times its range: the old visit's
+            // offset is measured on what it saw well.
+            let (old, seen_m) = d.epochs_before(before);
+            if seen_m > pd as f32 {
+                continue;
+            }
+            let (old, new) = (old.stats(), low.stats());
+            if old.n < min_n || old.var_m2 > max_var || new.var_m2 > max_var {
+                continue;
+            }
+            self.revisit_samples.push_back(Sample {
+                x_m: x,
+                y_m: y,
+                dz_m: new.mean_m - old.mean_m,
+                t_s,
+            });
+        }
+    }
+
+    /// The offset plane through the samples of the last sweeps (see [`Mapper::sample_revisit`]),
+    /// and how many it rests on; None with fewer than `revisit_min_cells`. The plane's tilt is
+    /// used only when the samples pin it (standard error under [`MAX_TILT_SE_RAD`]) and it
+    /// stays under [`MAX_TILT_RAD`], else the median alone; an offset within three standard
+    /// errors of zero is zero.
+    fn fit_revisit(&self, robot: &RobotPose, t_s: f64) -> Option<(RevisitOffset, usize)> {
+        let mut pairs: Vec<(f64, f64, f64)> = self
+            .revisit_samples
+            .iter()
+            .map(|s| (s.x_m - robot.x_m, s.y_m - robot.y_m, s.dz_m))
+            .collect();
+        if pairs.len() < self.cfg.revisit_min_cells.max(4) {
+            return None;
+        }
+        let mut v: Vec<f64> = pairs.iter().map(|p| p.2).collect();
+        let med = median(&mut v);
+        let mut dev: Vec<f64> = pairs.iter().map(|p| (p.2 - med).abs()).collect();
+        let sigma = 1.4826 * median(&mut dev);
+        pairs.retain(|p| (p.2 - med).abs() <= (3.0 * sigma).max(0.02));
+        let n = pairs.len() as f64;
+        let (b, c, a) = fit_plane(&pairs)
+            .filter(|p| p.tilt_se <= MAX_TILT_SE_RAD && p.b.hypot(p.c) <= MAX_TILT_RAD)
+            .map(|p| (p.b, p.c, p.a))
+            .unwrap_or_else(|| {
+                // The median's standard error, for a normal spread: 1.2533 sigma / sqrt(n).
+                let se = 1.2533 * sigma / n.sqrt();
+                (0.0, 0.0, if med.abs() > 3.0 * se { med } else { 0.0 })
+            });
+        Some((
+            RevisitOffset {
+                x0: robot.x_m,
+                y0: robot.y_m,
+                a,
+                b,
+                c,
+                t_s,
+            },
+            pairs.len(),
+        ))
+    }
+}
+
+/// The median of `v` (reordered); `v` must not be empty.
+fn median(v: &mut [f64]) -> f64 {
+    let m = v.len() / 2;
+    *v.select_nth_unstable_by(m, f64::total_cmp).1
+}
+
+/// A least-squares plane `z = b x + c y + a`, with the larger standard error of its two
+/// slopes (radians).
+#[derive(Clone, Copy, Debug)]
+struct Plane {
+    a: f64,
+    b: f64,
+    c: f64,
+    tilt_se: f64,
+}
+
+/// The least-squares plane through `(x, y, z)`; None when the points do not pin it.
+fn fit_plane(p: &[(f64, f64, f64)]) -> Option<Plane> {
+    if p.len() < 4 {
+        return None;
+    }
+    let mut m = nalgebra::Matrix3::<f64>::zeros();
+    let mut r = nalgebra::Vector3::<f64>::zeros();
+    for &(x, y, z) in p {
+        let v = nalgebra::Vector3::new(x, y, 1.0);
+        m += v * v.transpose();
+        r += v * z;
+    }
+    let chol = m.cholesky()?;
+    let s = chol.solve(&r);
+    let rss: f64 = p
+        .iter()
+        .map(|&(x, y, z)| (z - s.x * x - s.y * y - s.z).powi(2))
+        .sum();
+    let var = rss / (p.len() - 3) as f64;
+    let cov = chol.inverse() * var;
+    let tilt_se = cov[(0, 0)].max(cov[(1, 1)]).sqrt();
+    (s.iter().all(|v| v.is_finite()) && tilt_se.is_finite()).then_some(Plane {
+        a: s.z,
+        b: s.x,
+        c: s.y,
+        tilt_se,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_plane_fit_recovers_an_offset_and_a_tilt() {
+        let pts: Vec<(f64, f64, f64)> = (0..50)
+            .map(|k| {
+                let (x, y) = ((k % 10) as f64 - 5.0, (k / 10) as f64 * 2.0 - 5.0);
+                (x, y, 0.08 + 0.002 * x - 0.001 * y)
+            })
+            .collect();
+        let p = fit_plane(&pts).unwrap();
+        assert!((p.a - 0.08).abs() < 1e-9 && (p.b - 0.002).abs() < 1e-9);
+        assert!((p.c + 0.001).abs() < 1e-9 && p.tilt_se < 1e-9, "{p:?}");
+        assert!(fit_plane(&pts[..3]).is_none());
+        let line: Vec<_> = (0..10).map(|k| (k as f64, 0.0, 0.1)).collect();
+        assert!(fit_plane(&line).is_none(), "collinear points pin no tilt");
+    }
+
+    #[test]
+    fn the_median_is_the_middle_value() {
+        assert_eq!(median(&mut [3.0, -1.0, 2.0]), 2.0);
+        assert_eq!(median(&mut [5.0]), 5.0);
+    }
+}

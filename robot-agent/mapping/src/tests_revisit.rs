@@ -1,0 +1,100 @@
+//! Revisits (docs/algorithms.md §4.13): ground mapped in an earlier visit, seen again after the
+//! frame moved under it, is moved onto the current frame instead of standing apart from the new
+//! evidence as false steps.
+
+use crate::{Class, Config, Evidence, Mapper, RobotPose};
+
+/// Flat ground over x, y in [-3, 3) m every 5 cm at height `z(x, y)`, only the rows `keep`
+/// accepts (a sweep's rings leave gaps between them).
+fn ground(z: impl Fn(f64, f64) -> f64, keep: impl Fn(f64) -> bool) -> Vec<[f32; 3]> {
+    let mut pts = Vec::new();
+    for i in 0..120 {
+        for j in 0..120 {
+            let (x, y) = (
+                -3.0 + (i as f64 + 0.5) * 0.05,
+                -3.0 + (j as f64 + 0.5) * 0.05,
+            );
+            if keep(y) {
+                pts.push([x as f32, y as f32, z(x, y) as f32]);
+            }
+        }
+    }
+    pts
+}
+
+/// The robot just south of the patch, its wheels at `z_m`.
+fn robot(z_m: f64) -> RobotPose {
+    RobotPose {
+        x_m: 0.0,
+        y_m: -3.5,
+        z_m,
+        yaw_rad: std::f64::consts::FRAC_PI_2,
+    }
+}
+
+/// A mapper that has seen the whole patch flat at z = 0 at t = 0 s.
+fn first_visit(cfg: Config) -> Mapper {
+    let mut m = Mapper::new(cfg).unwrap();
+    m.update_points(
+        ground(|_, _| 0.0, |_| true),
+        &robot(0.0),
+        0.0,
+        Evidence::Scan,
+    )
+    .unwrap();
+    m
+}
+
+/// Obstacle cells over the ground patch after a full first visit and a second visit 100 s later
+/// whose frame stands 12 cm higher (and tilted by 0.1 deg), seen in stripes 3 cells wide with
+/// 3-cell gaps; the robot stands on the same ground in each visit's frame.
+fn obstacles_after_revisit(cfg: Config) -> (usize, usize) {
+    let mut m = first_visit(cfg);
+    let stripes = |y: f64| ((y + 3.0) / 0.6).floor() as i64 % 2 == 0;
+    let tilted = |x: f64, _y: f64| 0.12 + 0.0017 * x;
+    let rep = m
+        .update_points(ground(tilted, stripes), &robot(0.12), 100.0, Evidence::Scan)
+        .unwrap();
+    let (c0, c1) = (
+        m.lattice().cell_of(-2.9, -2.9),
+        m.lattice().cell_of(2.9, 2.9),
+    );
+    let mut n = 0;
+    for cy in c0.1..=c1.1 {
+        for cx in c0.0..=c1.0 {
+            n += usize::from(m.class(cx, cy) == Class::Obstacle);
+        }
+    }
+    (n, rep.revisit_moved)
+}
+
+#[test]
+fn a_revisit_moves_the_earlier_visits_ground_onto_the_current_frame() {
+    let (without, moved) = obstacles_after_revisit(Config {
+        revisit_gap_s: 0.0,
+        ..Config::default()
+    });
+    assert_eq!(moved, 0);
+    assert!(
+        without > 100,
+        "without the alignment the stripes should stand apart as steps: {without} obstacles"
+    );
+    let (with, moved) = obstacles_after_revisit(Config::default());
+    assert!(moved > 800, "{moved} cells moved");
+    assert_eq!(with, 0, "obstacle cells on flat ground after the revisit");
+}
+
+/// Within the gap the cells are the same visit: nothing is measured or moved.
+#[test]
+fn ground_seen_again_within_the_gap_is_not_a_revisit() {
+    let mut m = first_visit(Config::default());
+    let rep = m
+        .update_points(
+            ground(|_, _| 0.01, |_| true),
+            &robot(0.01),
+            10.0,
+            Evidence::Scan,
+        )
+        .unwrap();
+    assert_eq!((rep.revisit_pairs, rep.revisit_moved), (0, 0));
+}
