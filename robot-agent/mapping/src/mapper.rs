@@ -139,8 +139,8 @@ pub struct UpdateReport {
     pub cleared_cells: usize,
     /// Cells whose points this sweep were ignored: seen much better from closer before.
     pub far_skipped: usize,
-    /// Ground cells of this sweep that an earlier visit's ground was measured against (0: no
-    /// offset fitted this sweep).
+    /// Samples the revisit offset was fitted to in this update, this sweep's and the last few
+    /// sweeps' ground cells against an earlier visit's (0: no offset fitted).
     pub revisit_pairs: usize,
     /// An earlier visit's cells moved onto the current frame by the revisit offset.
     pub revisit_moved: usize,
