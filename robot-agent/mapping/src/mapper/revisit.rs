@@ -9,8 +9,10 @@
 //! from within the processing distance reached it for `revisit_gap_s` (far glimpses on the way
 //! back do not make it current). The sweep's ground cells within the processing distance that
 //! hold such evidence, in epochs that ended before the gap and were seen from within the
-//! processing distance, give one height difference each, kept for the last few sweeps (the
-//! cells come within reach a few at a time). A plane through them (robust: the median first,
+//! processing distance, give one height difference each (none beyond 0.3 m: a changed scene),
+//! kept for the last few sweeps (the cells come within reach a few at a time), one per cell.
+//! Samples that do not agree on one offset (spread over 3 cm, or under three quarters near
+//! their median) fit none. A plane through them (robust: the median first,
 //! then the cells within three spreads of it) is the old map's offset from the current frame
 //! around the robot; its tilt counts only where the cells pin it, else the median
 //! alone, and an offset within three standard errors of zero is none. The old epochs of every
@@ -34,14 +36,28 @@ const MAX_TILT_RAD: f64 = 0.003;
 /// processing distance): the cells lie on too narrow a strip to pin a tilt.
 const MAX_TILT_SE_RAD: f64 = 0.001;
 
+/// A height difference larger than this is something that changed, not the frame's drift
+/// between the visits, metres.
+const MAX_SAMPLE_M: f64 = 0.3;
+
+/// The samples' robust spread (1.4826 MAD) above which they measure no one offset, metres: a
+/// frame offset moves flat ground alike, so its samples agree to the ground's own roughness.
+const MAX_SAMPLE_SPREAD_M: f64 = 0.03;
+
+/// Share of the samples that must agree with their median (within three spreads) for an
+/// offset to be fitted.
+const MIN_AGREEING: f64 = 0.75;
+
 /// Samples are kept this long for the offset fit, seconds: a few sweeps' worth, so the cells
 /// that come within reach one sweep at a time are enough to follow the offset along the way.
 const SAMPLE_WINDOW_S: f64 = 3.0;
 
-/// One sample of the offset: a ground cell's centre (map frame, metres), its height in the
-/// sweep less the earlier visit's (metres), and the sweep's time (seconds).
+/// One sample of the offset: a ground cell (lattice index, and its centre in the map frame,
+/// metres), its height in the sweep less the earlier visit's (metres), and the sweep's time
+/// (seconds).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Sample {
+    cell: (i64, i64),
     x_m: f64,
     y_m: f64,
     dz_m: f64,
@@ -179,10 +195,15 @@ impl Mapper {
                 continue;
             }
             let (old, new) = (old.stats(), low.stats());
-            if old.n < min_n || old.var_m2 > max_var || new.var_m2 > max_var {
+            if old.n < min_n
+                || old.var_m2 > max_var
+                || new.var_m2 > max_var
+                || (new.mean_m - old.mean_m).abs() > MAX_SAMPLE_M
+            {
                 continue;
             }
             self.revisit_samples.push_back(Sample {
+                cell: (cx, cy),
                 x_m: x,
                 y_m: y,
                 dz_m: new.mean_m - old.mean_m,
@@ -197,8 +218,13 @@ impl Mapper {
     /// stays under [`MAX_TILT_RAD`], else the median alone; an offset within three standard
     /// errors of zero is zero.
     fn fit_revisit(&self, robot: &RobotPose, t_s: f64) -> Option<(RevisitOffset, usize)> {
-        let mut pairs: Vec<(f64, f64, f64)> = self
-            .revisit_samples
+        // One sample per cell, its newest: a cell whose evidence the far-view rule keeps out
+        // is sampled again every sweep, and a few such cells (a car parked since, seen from
+        // 12 m) would outvote the ground.
+        let mut newest: Vec<&Sample> = self.revisit_samples.iter().rev().collect();
+        newest.sort_by_key(|s| s.cell);
+        newest.dedup_by_key(|s| s.cell);
+        let mut pairs: Vec<(f64, f64, f64)> = newest
             .iter()
             .map(|s| (s.x_m - robot.x_m, s.y_m - robot.y_m, s.dz_m))
             .collect();
@@ -209,8 +235,15 @@ impl Mapper {
         let med = median(&mut v);
         let mut dev: Vec<f64> = pairs.iter().map(|p| (p.2 - med).abs()).collect();
         let sigma = 1.4826 * median(&mut dev);
+        let all = pairs.len();
         pairs.retain(|p| (p.2 - med).abs() <= (3.0 * sigma).max(0.02));
+        // A frame offset moves all the ground alike; samples that disagree more than that
+        // are a changed scene (a car parked, a trunk fallen), not the frame.
+        if sigma > MAX_SAMPLE_SPREAD_M || (pairs.len() as f64) < MIN_AGREEING * all as f64 {
+            return None;
+        }
         let n = pairs.len() as f64;
+
         let (b, c, a) = fit_plane(&pairs)
             .filter(|p| p.tilt_se <= MAX_TILT_SE_RAD && p.b.hypot(p.c) <= MAX_TILT_RAD)
             .map(|p| (p.b, p.c, p.a))
