@@ -172,16 +172,16 @@ impl CellData {
         }
     }
 
-    /// The epochs with index `before` or earlier (and the driven height, when `driven_too`)
-    /// moved up by `dz` metres: an earlier visit's evidence onto the current frame.
-    pub(super) fn shift_epochs_before(&mut self, before: i64, dz: f64, driven_too: bool) {
+    /// The epochs with index `before` or earlier, and the driven height, moved up by `dz`
+    /// metres: an earlier visit's evidence onto the current frame.
+    pub(super) fn shift_epochs_before(&mut self, before: i64, dz: f64) {
         if self.cur.n > 0 && self.epoch <= before {
             self.cur = self.cur.shifted(dz);
         }
         if self.prev.n > 0 && self.prev_epoch <= before {
             self.prev = self.prev.shifted(dz);
         }
-        if driven_too && self.driven {
+        if self.driven {
             self.driven_z += dz as f32;
         }
     }

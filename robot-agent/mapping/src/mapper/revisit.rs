@@ -142,7 +142,7 @@ impl Mapper {
                 if shift {
                     // Only the earlier visit's epochs: far glimpses taken on the way back are
                     // in the current frame already.
-                    d.shift_epochs_before(before, off.dz(x, y), true);
+                    d.shift_epochs_before(before, off.dz(x, y));
                     self.refresh_ground(cx, cy);
                     rep.revisit_moved += 1;
                     if dist <= pd {
