@@ -164,6 +164,15 @@ fn norm2(a: f64, b: f64) -> f64 {
     (a * a + b * b).sqrt()
 }
 
+/// Largest `|f(x, y)|` over the corners of the square of half-side `half_m` about (`x_m`,
+/// `y_m`): for a plane (or an isometry's height change), the largest anywhere in the square.
+fn largest_at_corners(x_m: f64, y_m: f64, half_m: f64, f: impl Fn(f64, f64) -> f64) -> f64 {
+    [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)]
+        .iter()
+        .map(|(sx, sy)| f(x_m + sx * half_m, y_m + sy * half_m).abs())
+        .fold(0.0, f64::max)
+}
+
 /// One tile's cells: what the mapper keeps and what it outputs.
 struct TileSlot {
     index: TileIndex,

@@ -2,7 +2,7 @@
 //! heights around it move with it (docs/algorithms.md §4.13), so the correction draws no false
 //! steps between old and new sweeps.
 
-use super::Mapper;
+use super::{largest_at_corners, Mapper};
 use nalgebra::Isometry3;
 
 /// Stored heights may lag the map frame by this much before they follow it, metres: far below
@@ -31,18 +31,9 @@ impl Mapper {
         let full_m = 0.75 * radius_m;
         let taper_m = (radius_m - full_m).max(1e-9);
         let dz_at = |x: f64, y: f64, z: f64| (delta * nalgebra::Point3::new(x, y, z)).z - z;
-        let corners = [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)];
-        let worst = corners
-            .iter()
-            .map(|(sx, sy)| {
-                dz_at(
-                    robot.x_m + sx * radius_m,
-                    robot.y_m + sy * radius_m,
-                    robot.z_m,
-                )
-                .abs()
-            })
-            .fold(0.0, f64::max);
+        let worst = largest_at_corners(robot.x_m, robot.y_m, radius_m, |x, y| {
+            dz_at(x, y, robot.z_m)
+        });
         if !worst.is_finite() {
             self.frame_lag = Isometry3::identity();
             return 0;

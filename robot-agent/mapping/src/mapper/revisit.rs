@@ -22,7 +22,7 @@
 //! `revisit_gap_s` after its last fit.
 
 use super::cell_data::Moments;
-use super::{norm2, Evidence, Mapper, RobotPose, UpdateReport};
+use super::{largest_at_corners, norm2, Evidence, Mapper, RobotPose, UpdateReport};
 
 /// Offsets smaller than this everywhere within reach are not applied, metres: below what any
 /// step test can tell (`grass_sd_min_m` is 8 mm); the cells still count as current.
@@ -110,14 +110,8 @@ impl Mapper {
             return;
         };
         let reach_m = self.cfg.processing_distance_m + 2.0 * self.cfg.grid_size_m;
-        let shift = [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)]
-            .iter()
-            .map(|(sx, sy)| {
-                off.dz(robot.x_m + sx * reach_m, robot.y_m + sy * reach_m)
-                    .abs()
-            })
-            .fold(0.0, f64::max)
-            > MIN_SHIFT_M;
+        let shift =
+            largest_at_corners(robot.x_m, robot.y_m, reach_m, |x, y| off.dz(x, y)) > MIN_SHIFT_M;
         let (rcx, rcy) = self.lattice.cell_of(robot.x_m, robot.y_m);
         let r = (reach_m / self.cfg.grid_size_m).ceil() as i64;
         let pd = self.cfg.processing_distance_m;
