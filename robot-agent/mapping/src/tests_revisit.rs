@@ -4,9 +4,9 @@
 
 use crate::{Class, Config, Evidence, Mapper, RobotPose};
 
-/// Flat ground over x, y in [-3, 3) m every 5 cm at height `z(x, y)`, only the rows `keep`
+/// Flat ground over x, y in [-3, 3) m every 5 cm at height `z(x, y)`, only where `keep`
 /// accepts (a sweep's rings leave gaps between them).
-fn ground(z: impl Fn(f64, f64) -> f64, keep: impl Fn(f64) -> bool) -> Vec<[f32; 3]> {
+fn ground(z: impl Fn(f64, f64) -> f64, keep: impl Fn(f64, f64) -> bool) -> Vec<[f32; 3]> {
     let mut pts = Vec::new();
     for i in 0..120 {
         for j in 0..120 {
@@ -14,7 +14,7 @@ fn ground(z: impl Fn(f64, f64) -> f64, keep: impl Fn(f64) -> bool) -> Vec<[f32; 
                 -3.0 + (i as f64 + 0.5) * 0.05,
                 -3.0 + (j as f64 + 0.5) * 0.05,
             );
-            if keep(y) {
+            if keep(x, y) {
                 pts.push([x as f32, y as f32, z(x, y) as f32]);
             }
         }
@@ -36,7 +36,7 @@ fn robot(z_m: f64) -> RobotPose {
 fn first_visit(cfg: Config) -> Mapper {
     let mut m = Mapper::new(cfg).unwrap();
     m.update_points(
-        ground(|_, _| 0.0, |_| true),
+        ground(|_, _| 0.0, |_, _| true),
         &robot(0.0),
         0.0,
         Evidence::Scan,
@@ -50,11 +50,16 @@ fn first_visit(cfg: Config) -> Mapper {
 /// 3-cell gaps; the robot stands on the same ground in each visit's frame.
 fn obstacles_after_revisit(cfg: Config) -> (usize, usize) {
     let mut m = first_visit(cfg);
-    let stripes = |y: f64| ((y + 3.0) / 0.6).floor() as i64 % 2 == 0;
+    let stripes = |_x: f64, y: f64| ((y + 3.0) / 0.6).floor() as i64 % 2 == 0;
     let tilted = |x: f64, _y: f64| 0.12 + 0.0017 * x;
     let rep = m
         .update_points(ground(tilted, stripes), &robot(0.12), 100.0, Evidence::Scan)
         .unwrap();
+    (obstacles(&m), rep.revisit_moved)
+}
+
+/// Obstacle cells over the ground patch.
+fn obstacles(m: &Mapper) -> usize {
     let (c0, c1) = (
         m.lattice().cell_of(-2.9, -2.9),
         m.lattice().cell_of(2.9, 2.9),
@@ -65,7 +70,7 @@ fn obstacles_after_revisit(cfg: Config) -> (usize, usize) {
             n += usize::from(m.class(cx, cy) == Class::Obstacle);
         }
     }
-    (n, rep.revisit_moved)
+    n
 }
 
 #[test]
@@ -90,11 +95,100 @@ fn ground_seen_again_within_the_gap_is_not_a_revisit() {
     let mut m = first_visit(Config::default());
     let rep = m
         .update_points(
-            ground(|_, _| 0.01, |_| true),
+            ground(|_, _| 0.01, |_, _| true),
             &robot(0.01),
             10.0,
             Evidence::Scan,
         )
         .unwrap();
     assert_eq!((rep.revisit_pairs, rep.revisit_moved), (0, 0));
+}
+
+/// The revisit's first sweep sees too few of the earlier visit's cells for a fit; the next one
+/// sees enough. The first sweep's cells must still be moved with the others, not left holding
+/// the old heights beside the new evidence.
+#[test]
+fn cells_seen_again_before_the_offset_is_fitted_are_moved_with_it() {
+    let mut m = first_visit(Config::default());
+    let raised = |_: f64, _: f64| 0.12;
+    let corner = |x: f64, y: f64| x.abs() < 0.5 && y < -2.4;
+    let rep = m
+        .update_points(ground(raised, corner), &robot(0.12), 100.0, Evidence::Scan)
+        .unwrap();
+    assert_eq!(rep.revisit_moved, 0, "too few cells for a fit");
+    let rep = m
+        .update_points(
+            ground(raised, |_, _| true),
+            &robot(0.12),
+            100.1,
+            Evidence::Scan,
+        )
+        .unwrap();
+    assert!(rep.revisit_moved > 800, "{} cells moved", rep.revisit_moved);
+    assert_eq!(
+        obstacles(&m),
+        0,
+        "obstacle cells on flat ground after the revisit"
+    );
+}
+
+/// Flat ground at `z_m` over x in [-3, 3) m and y in [`y0_m`, `y1_m`) m, every 5 cm.
+fn strip(y0_m: f64, y1_m: f64, z_m: f64) -> Vec<[f32; 3]> {
+    let mut pts = Vec::new();
+    let mut y = y0_m + 0.025;
+    while y < y1_m {
+        for i in 0..120 {
+            pts.push([
+                (-3.0 + (i as f64 + 0.5) * 0.05) as f32,
+                y as f32,
+                z_m as f32,
+            ]);
+        }
+        y += 0.05;
+    }
+    pts
+}
+
+/// A strip far ahead is glimpsed from beyond the processing distance on the way back, in the
+/// current frame, more than the gap before the revisit's offset is fitted: the offset moves
+/// the earlier visit's heights, not that glimpse's.
+#[test]
+fn a_glimpse_taken_on_the_way_back_is_not_moved_with_the_earlier_visit() {
+    let mut m = Mapper::new(Config::default()).unwrap();
+    let at = |y_m: f64, z_m: f64| RobotPose {
+        x_m: 0.0,
+        y_m,
+        z_m,
+        yaw_rad: std::f64::consts::FRAC_PI_2,
+    };
+    let both = |z_m: f64| {
+        let mut p = strip(-3.0, 3.0, z_m);
+        p.extend(strip(6.5, 7.5, z_m));
+        p
+    };
+    m.update_points(both(0.0), &at(-3.5, 0.0), 0.0, Evidence::Scan)
+        .unwrap();
+    // From 14.5-15.5 m: beyond the processing distance, within the far-view rule's reach.
+    m.update_points(
+        strip(6.5, 7.5, 0.12),
+        &at(-8.0, 0.12),
+        100.0,
+        Evidence::Scan,
+    )
+    .unwrap();
+    let rep = m
+        .update_points(both(0.12), &at(-3.5, 0.12), 135.0, Evidence::Scan)
+        .unwrap();
+    assert!(rep.revisit_moved > 800, "{} cells moved", rep.revisit_moved);
+    let (c0, c1) = (
+        m.lattice().cell_of(-2.9, 6.6),
+        m.lattice().cell_of(2.9, 7.4),
+    );
+    let mut n = 0;
+    for cy in c0.1..=c1.1 {
+        for cx in c0.0..=c1.0 {
+            n += usize::from(m.class(cx, cy) == Class::Obstacle);
+        }
+    }
+    assert_eq!(n, 0, "obstacle cells on the glimpsed strip");
 }

@@ -105,6 +105,10 @@ pub(super) struct CellData {
     /// accepted from within the processing distance, the robot drove over it, or a revisit's
     /// offset moved it there, seconds.
     pub(super) current_s: f32,
+    /// Session time evidence from within the processing distance last made an earlier visit's
+    /// cell current before a revisit's offset moved its old epochs, seconds (negative infinity:
+    /// none waiting).
+    pub(super) unaligned_s: f32,
     /// Closest robot distance from which this cell was judged a drop-off, metres.
     pub(super) neg_range_m: f32,
     /// Closest robot distance from which the cell's current class was judged, metres.
@@ -142,6 +146,7 @@ impl Default for CellData {
             seen_range_m: f32::INFINITY,
             accepted_s: f32::NEG_INFINITY,
             current_s: f32::NEG_INFINITY,
+            unaligned_s: f32::NEG_INFINITY,
             neg_range_m: f32::INFINITY,
             class_range_m: f32::INFINITY,
             epoch: 0,
@@ -183,6 +188,25 @@ impl CellData {
         }
         if self.driven {
             self.driven_z += dz as f32;
+        }
+    }
+
+    /// The cell belongs to an earlier visit (docs/algorithms.md §4.13): nothing from within the
+    /// processing distance reached it for `gap_s` before `t_s`, and it holds evidence of epochs
+    /// `before` or earlier, or was driven over.
+    pub(super) fn is_earlier_visit(&self, t_s: f32, gap_s: f32, before: i64) -> bool {
+        t_s - self.current_s > gap_s
+            && (self.driven
+                || (self.cur.n > 0 && self.epoch <= before)
+                || (self.prev.n > 0 && self.prev_epoch <= before))
+    }
+
+    /// The index of the newest epoch holding evidence with index `before` or earlier.
+    pub(super) fn newest_epoch_before(&self, before: i64) -> Option<i64> {
+        if self.cur.n > 0 && self.epoch <= before {
+            Some(self.epoch)
+        } else {
+            (self.prev.n > 0 && self.prev_epoch <= before).then_some(self.prev_epoch)
         }
     }
 

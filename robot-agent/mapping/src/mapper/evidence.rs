@@ -178,6 +178,8 @@ impl Mapper {
         let epoch = (t_s / self.cfg.evidence_epoch_s).floor() as i64;
         let stamp = stamp_of(t_s);
         let scan = self.scan_id;
+        let (gap_s, before) = (self.cfg.revisit_gap_s as f32, self.epoch_before(t_s));
+        let revisit_on = kind == Evidence::Scan && gap_s > 0.0;
         let touched = std::mem::take(&mut self.win.touched);
         dirty.reserve(touched.len());
         for &i in &touched {
@@ -213,6 +215,11 @@ impl Mapper {
             let d = self.data_mut(cx, cy);
             d.accepted_s = t_s as f32;
             if close {
+                // The revisit's offset is fitted a few sweeps after the first samples: an
+                // earlier visit's cell seen again before then still gets it (`align_revisit`).
+                if revisit_on && d.is_earlier_visit(t_s as f32, gap_s, before) {
+                    d.unaligned_s = t_s as f32;
+                }
                 d.current_s = t_s as f32;
             }
             let changed = match kind {

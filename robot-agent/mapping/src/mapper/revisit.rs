@@ -19,7 +19,10 @@
 //! earlier visit's cell within reach (the processing distance and the rules' neighbourhood) are
 //! moved by it before the sweep is merged, and the cell counts as current from then on. The
 //! plane stays in use for the cells that come within reach in the next sweeps until
-//! `revisit_gap_s` after its last fit.
+//! `revisit_gap_s` after its last fit. Cells seen again from close by in the sweeps before the
+//! fit (it waits for `revisit_min_cells` samples) are moved by it too, within [`CATCH_UP_S`].
+//! Only epochs nearer in time to the sampled visit than to the fit move: a far glimpse taken on
+//! the way back is in the current frame already, however long ago.
 
 use super::cell_data::Moments;
 use super::{largest_at_corners, norm2, Evidence, Mapper, RobotPose, UpdateReport};
@@ -52,6 +55,13 @@ const MIN_AGREEING: f64 = 0.75;
 /// that come within reach one sweep at a time are enough to follow the offset along the way.
 const SAMPLE_WINDOW_S: f64 = 3.0;
 
+/// An earlier visit's cell made current by evidence from close by before an offset was fitted
+/// is still moved by one fitted this long after, seconds: the first samples come a cell at a
+/// time, and the fit waits for `revisit_min_cells` of them (on `loop`, cells first seen again
+/// at 368.3 s met the fit of 373 s; left unmoved, their old epochs stood 10 cm above the new ones
+/// as false obstacles).
+const CATCH_UP_S: f32 = 10.0;
+
 /// One sample of the offset: a ground cell (lattice index, and its centre in the map frame,
 /// metres), its height in the sweep less the earlier visit's (metres), and the sweep's time
 /// (seconds).
@@ -62,6 +72,8 @@ pub(super) struct Sample {
     y_m: f64,
     dz_m: f64,
     t_s: f64,
+    /// The newest of the earlier visit's epochs the difference was taken against.
+    old_epoch: i64,
 }
 
 /// The old map's height offset from the current frame: `dz = a + b (x - x0) + c (y - y0)`.
@@ -75,6 +87,11 @@ pub(super) struct RevisitOffset {
     c: f64,
     /// Session time of the fit, seconds.
     t_s: f64,
+    /// The newest epoch the offset applies to: halfway from the samples' newest old epoch to
+    /// the fit. An epoch nearer in time to the earlier visit shares its frame's offset; one
+    /// nearer to now (a far glimpse on the way back, within the processing distance only now)
+    /// is in the current frame, however long ago it was taken.
+    until_epoch: i64,
 }
 
 impl RevisitOffset {
@@ -125,18 +142,19 @@ impl Mapper {
                 if dist > reach_m {
                     continue;
                 }
-                let old = self
-                    .data(cx, cy)
-                    .is_some_and(|d| (d.evidence().n > 0 || d.driven) && t - d.current_s > gap);
+                let old = self.data(cx, cy).is_some_and(|d| {
+                    d.is_earlier_visit(t, gap, before) || t - d.unaligned_s <= CATCH_UP_S
+                });
                 if !old {
                     continue;
                 }
                 let d = self.data_mut(cx, cy);
                 d.current_s = t;
+                d.unaligned_s = f32::NEG_INFINITY;
                 if shift {
                     // Only the earlier visit's epochs: far glimpses taken on the way back are
                     // in the current frame already.
-                    d.shift_epochs_before(before, off.dz(x, y));
+                    d.shift_epochs_before(before.min(off.until_epoch), off.dz(x, y));
                     self.refresh_ground(cx, cy);
                     rep.revisit_moved += 1;
                     if dist <= pd {
@@ -148,7 +166,7 @@ impl Mapper {
     }
 
     /// The newest evidence epoch that ended more than `revisit_gap_s` before `t_s`.
-    fn epoch_before(&self, t_s: f64) -> i64 {
+    pub(super) fn epoch_before(&self, t_s: f64) -> i64 {
         ((t_s - self.cfg.revisit_gap_s) / self.cfg.evidence_epoch_s).floor() as i64 - 1
     }
 
@@ -179,7 +197,7 @@ impl Mapper {
                 continue;
             }
             let Some(d) = self.data(cx, cy) else { continue };
-            if t - d.current_s <= gap {
+            if t - d.current_s <= gap && t - d.unaligned_s > CATCH_UP_S {
                 continue;
             }
             // A far view's heights carry its attitude error times its range: the old visit's
@@ -188,6 +206,9 @@ impl Mapper {
             if seen_m > pd as f32 {
                 continue;
             }
+            let Some(old_epoch) = d.newest_epoch_before(before) else {
+                continue;
+            };
             let (old, new) = (old.stats(), low.stats());
             if old.n < min_n
                 || old.var_m2 > max_var
@@ -202,6 +223,7 @@ impl Mapper {
                 y_m: y,
                 dz_m: new.mean_m - old.mean_m,
                 t_s,
+                old_epoch,
             });
         }
     }
@@ -218,19 +240,27 @@ impl Mapper {
         let mut newest: Vec<&Sample> = self.revisit_samples.iter().rev().collect();
         newest.sort_by_key(|s| s.cell);
         newest.dedup_by_key(|s| s.cell);
+        if newest.len() < self.cfg.revisit_min_cells.max(4) {
+            return None;
+        }
         let mut pairs: Vec<(f64, f64, f64)> = newest
             .iter()
             .map(|s| (s.x_m - robot.x_m, s.y_m - robot.y_m, s.dz_m))
             .collect();
-        if pairs.len() < self.cfg.revisit_min_cells.max(4) {
-            return None;
-        }
         let mut v: Vec<f64> = pairs.iter().map(|p| p.2).collect();
         let med = median(&mut v);
         let mut dev: Vec<f64> = pairs.iter().map(|p| (p.2 - med).abs()).collect();
         let sigma = 1.4826 * median(&mut dev);
         let all = pairs.len();
-        pairs.retain(|p| (p.2 - med).abs() <= (3.0 * sigma).max(0.02));
+        let agrees = |dz: f64| (dz - med).abs() <= (3.0 * sigma).max(0.02);
+        pairs.retain(|p| agrees(p.2));
+        let newest_old = newest
+            .iter()
+            .filter(|s| agrees(s.dz_m))
+            .map(|s| s.old_epoch)
+            .max()?;
+        let now = (t_s / self.cfg.evidence_epoch_s).floor() as i64;
+        let until_epoch = newest_old + (now - newest_old) / 2;
         // A frame offset moves all the ground alike; samples that disagree more than that
         // are a changed scene (a car parked, a trunk fallen), not the frame.
         if sigma > MAX_SAMPLE_SPREAD_M || (pairs.len() as f64) < MIN_AGREEING * all as f64 {
@@ -254,6 +284,7 @@ impl Mapper {
                 b,
                 c,
                 t_s,
+                until_epoch,
             },
             pairs.len(),
         ))
