@@ -192,3 +192,39 @@ fn a_glimpse_taken_on_the_way_back_is_not_moved_with_the_earlier_visit() {
     }
     assert_eq!(n, 0, "obstacle cells on the glimpsed strip");
 }
+
+/// A column of cells the first visit never saw, seen a visit later only from 17-20 m, 10 cm
+/// lower in that visit's frame, beside cells the first visit judged from close by. Out there no
+/// revisit offset moved the old cells (beyond its reach), so the far step rule must not take
+/// the column for the lower side of a step the first pass had in its shadow.
+#[test]
+fn a_distant_view_from_a_later_visit_does_not_mark_a_step() {
+    let run = |revisit_gap_s: f64| {
+        let mut m = Mapper::new(Config {
+            revisit_gap_s,
+            ..Config::default()
+        })
+        .unwrap();
+        let column = |x: f64, _: f64| (0.6..1.0).contains(&x);
+        m.update_points(
+            ground(|_, _| 0.0, |x, y| !column(x, y)),
+            &robot(0.0),
+            0.0,
+            Evidence::Scan,
+        )
+        .unwrap();
+        let far = RobotPose {
+            y_m: -20.0,
+            ..robot(-0.1)
+        };
+        m.update_points(ground(|_, _| -0.1, column), &far, 100.0, Evidence::Scan)
+            .unwrap();
+        obstacles(&m)
+    };
+    let (with, without) = (run(30.0), run(0.0));
+    assert!(
+        without > 5,
+        "the control run should mark the step: {without}"
+    );
+    assert_eq!(with, 0, "obstacle cells beside the column");
+}

@@ -135,8 +135,17 @@ impl Mapper {
     /// seen only from beyond the processing distance that lies lower than the cell: the far
     /// side of a raised edge, in the edge's shadow while the robot passed on the near side. Far
     /// views that make a neighbour look higher (grass tops at grazing angles) do not count.
+    ///
+    /// Only a neighbour seen within `revisit_gap_s` of the cell's last close view: a later one
+    /// is another visit's, in a frame the cell's heights were never moved onto when the cell
+    /// lies beyond the revisit's reach (on `loop` a 6 cm offset between the first visit's and
+    /// the last leg's far view raised 159 cells of open ground).
     fn shadowed_step(&self, cx: i64, cy: i64, d: &CellData) -> bool {
         let pd = self.cfg.processing_distance_m as f32;
+        let gap_s = self.cfg.revisit_gap_s as f32;
+        let epoch_s = self.cfg.evidence_epoch_s as f32;
+        let same_visit =
+            |n: &CellData| gap_s <= 0.0 || n.epoch as f32 * epoch_s - d.current_s <= gap_s;
         let own = d.evidence().stats();
         let lower_far = (-1..=1)
             .flat_map(|dy| (-1..=1).map(move |dx| (dx, dy)))
@@ -145,6 +154,7 @@ impl Mapper {
                     let e = n.evidence();
                     e.n >= self.rules.min_points()
                         && n.cur_range_m.min(n.prev_range_m) > pd
+                        && same_visit(n)
                         && e.stats().mean_m < own.mean_m - 0.5 * self.cfg.max_step_m
                 })
             });
