@@ -289,10 +289,12 @@ async fn sessions() -> (zenoh::Session, zenoh::Session) {
     (robot, ours)
 }
 
-async fn within<T>(f: impl std::future::Future<Output = T>) -> T {
-    tokio::time::timeout(Duration::from_secs(20), f)
-        .await
-        .expect("nothing arrived within 20 s")
+/// `f`'s output, or a panic naming `what` did not arrive within 20 s.
+async fn within<T>(what: &str, f: impl std::future::Future<Output = T>) -> T {
+    match tokio::time::timeout(Duration::from_secs(20), f).await {
+        Ok(v) => v,
+        Err(_) => panic!("{what}: nothing arrived within 20 s"),
+    }
 }
 
 /// Publishes `payload` on `key` until the subscription has seen a sample (a new subscriber is
@@ -341,7 +343,7 @@ async fn round_trip(form: KeyForm) {
     };
     let payload = cdr::encode_point_cloud2(&cloud);
     let mut seq = 0i64;
-    let got = within(async {
+    let got = within("the first cloud", async {
         loop {
             seq += 1;
             let put = robot.put(cloud_key.as_str(), payload.clone());
@@ -373,12 +375,18 @@ async fn round_trip(form: KeyForm) {
         .put(cloud_key.as_str(), vec![0u8, 1, 0, 0, 9, 9])
         .await
         .unwrap();
-    assert!(within(clouds.recv()).await.unwrap().is_err());
+    assert!(within("the garbage sample", clouds.recv())
+        .await
+        .unwrap()
+        .is_err());
     robot
         .put(cloud_key.as_str(), payload.clone())
         .await
         .unwrap();
-    assert!(within(clouds.recv()).await.unwrap().is_ok());
+    assert!(within("the cloud after the garbage", clouds.recv())
+        .await
+        .unwrap()
+        .is_ok());
     let stats = clouds.stats();
     assert_eq!(stats.bad_cdr.load(std::sync::atomic::Ordering::Relaxed), 1);
     let bad_att = stats
@@ -398,7 +406,7 @@ async fn round_trip(form: KeyForm) {
         angular_z_rps: -0.1,
     };
     let mut sent = 0;
-    let sample = within(async {
+    let sample = within("cmd_vel", async {
         loop {
             sent += 1;
             cmd.put(&t, 1_700_000_000_000_000_000 + sent).await.unwrap();
