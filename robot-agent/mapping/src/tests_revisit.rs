@@ -7,12 +7,23 @@ use crate::{Class, Config, Evidence, Mapper, RobotPose};
 /// Flat ground over x, y in [-3, 3) m every 5 cm at height `z(x, y)`, only where `keep`
 /// accepts (a sweep's rings leave gaps between them).
 fn ground(z: impl Fn(f64, f64) -> f64, keep: impl Fn(f64, f64) -> bool) -> Vec<[f32; 3]> {
+    ground_over(-3.0, 3.0, z, keep)
+}
+
+/// [`ground`] over y in [`y0_m`, `y1_m`) m instead.
+fn ground_over(
+    y0_m: f64,
+    y1_m: f64,
+    z: impl Fn(f64, f64) -> f64,
+    keep: impl Fn(f64, f64) -> bool,
+) -> Vec<[f32; 3]> {
+    let rows = ((y1_m - y0_m) / 0.05).round() as usize;
     let mut pts = Vec::new();
     for i in 0..120 {
-        for j in 0..120 {
+        for j in 0..rows {
             let (x, y) = (
                 -3.0 + (i as f64 + 0.5) * 0.05,
-                -3.0 + (j as f64 + 0.5) * 0.05,
+                y0_m + (j as f64 + 0.5) * 0.05,
             );
             if keep(x, y) {
                 pts.push([x as f32, y as f32, z(x, y) as f32]);
@@ -60,10 +71,12 @@ fn obstacles_after_revisit(cfg: Config) -> (usize, usize) {
 
 /// Obstacle cells over the ground patch.
 fn obstacles(m: &Mapper) -> usize {
-    let (c0, c1) = (
-        m.lattice().cell_of(-2.9, -2.9),
-        m.lattice().cell_of(2.9, 2.9),
-    );
+    obstacles_in(m, (-2.9, -2.9), (2.9, 2.9))
+}
+
+/// Obstacle cells over the cells from `(x0, y0)` to `(x1, y1)`, metres.
+fn obstacles_in(m: &Mapper, (x0, y0): (f64, f64), (x1, y1): (f64, f64)) -> usize {
+    let (c0, c1) = (m.lattice().cell_of(x0, y0), m.lattice().cell_of(x1, y1));
     let mut n = 0;
     for cy in c0.1..=c1.1 {
         for cx in c0.0..=c1.0 {
@@ -134,19 +147,7 @@ fn cells_seen_again_before_the_offset_is_fitted_are_moved_with_it() {
 
 /// Flat ground at `z_m` over x in [-3, 3) m and y in [`y0_m`, `y1_m`) m, every 5 cm.
 fn strip(y0_m: f64, y1_m: f64, z_m: f64) -> Vec<[f32; 3]> {
-    let mut pts = Vec::new();
-    let mut y = y0_m + 0.025;
-    while y < y1_m {
-        for i in 0..120 {
-            pts.push([
-                (-3.0 + (i as f64 + 0.5) * 0.05) as f32,
-                y as f32,
-                z_m as f32,
-            ]);
-        }
-        y += 0.05;
-    }
-    pts
+    ground_over(y0_m, y1_m, |_, _| z_m, |_, _| true)
 }
 
 /// A strip far ahead is glimpsed from beyond the processing distance on the way back, in the
@@ -155,12 +156,7 @@ fn strip(y0_m: f64, y1_m: f64, z_m: f64) -> Vec<[f32; 3]> {
 #[test]
 fn a_glimpse_taken_on_the_way_back_is_not_moved_with_the_earlier_visit() {
     let mut m = Mapper::new(Config::default()).unwrap();
-    let at = |y_m: f64, z_m: f64| RobotPose {
-        x_m: 0.0,
-        y_m,
-        z_m,
-        yaw_rad: std::f64::consts::FRAC_PI_2,
-    };
+    let at = |y_m: f64, z_m: f64| RobotPose { y_m, ..robot(z_m) };
     let both = |z_m: f64| {
         let mut p = strip(-3.0, 3.0, z_m);
         p.extend(strip(6.5, 7.5, z_m));
@@ -180,16 +176,7 @@ fn a_glimpse_taken_on_the_way_back_is_not_moved_with_the_earlier_visit() {
         .update_points(both(0.12), &at(-3.5, 0.12), 135.0, Evidence::Scan)
         .unwrap();
     assert!(rep.revisit_moved > 800, "{} cells moved", rep.revisit_moved);
-    let (c0, c1) = (
-        m.lattice().cell_of(-2.9, 6.6),
-        m.lattice().cell_of(2.9, 7.4),
-    );
-    let mut n = 0;
-    for cy in c0.1..=c1.1 {
-        for cx in c0.0..=c1.0 {
-            n += usize::from(m.class(cx, cy) == Class::Obstacle);
-        }
-    }
+    let n = obstacles_in(&m, (-2.9, 6.6), (2.9, 7.4));
     assert_eq!(n, 0, "obstacle cells on the glimpsed strip");
 }
 

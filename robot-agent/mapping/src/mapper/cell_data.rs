@@ -195,10 +195,7 @@ impl CellData {
     /// processing distance reached it for `gap_s` before `t_s`, and it holds evidence of epochs
     /// `before` or earlier, or was driven over.
     pub(super) fn is_earlier_visit(&self, t_s: f32, gap_s: f32, before: i64) -> bool {
-        t_s - self.current_s > gap_s
-            && (self.driven
-                || (self.cur.n > 0 && self.epoch <= before)
-                || (self.prev.n > 0 && self.prev_epoch <= before))
+        t_s - self.current_s > gap_s && (self.driven || self.newest_epoch_before(before).is_some())
     }
 
     /// The index of the newest epoch holding evidence with index `before` or earlier.

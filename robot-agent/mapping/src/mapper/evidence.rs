@@ -163,6 +163,11 @@ impl Mapper {
         }
     }
 
+    /// The index of the evidence epoch (`evidence_epoch_s` long) that holds session time `t_s`.
+    pub(super) fn epoch_of(&self, t_s: f64) -> i64 {
+        (t_s / self.cfg.evidence_epoch_s).floor() as i64
+    }
+
     /// Merges the binned sweep into the cells' evidence and pushes the cells it changed onto
     /// `dirty`. `beams`: the sweep came with its origin (free space was marched); without, a
     /// cell's points are taken as having headroom.
@@ -175,7 +180,7 @@ impl Mapper {
         dirty: &mut Vec<(i64, i64)>,
         rep: &mut UpdateReport,
     ) {
-        let epoch = (t_s / self.cfg.evidence_epoch_s).floor() as i64;
+        let epoch = self.epoch_of(t_s);
         let stamp = stamp_of(t_s);
         let scan = self.scan_id;
         let (gap_s, before) = (self.cfg.revisit_gap_s as f32, self.epoch_before(t_s));

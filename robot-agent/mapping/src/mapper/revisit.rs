@@ -167,7 +167,7 @@ impl Mapper {
 
     /// The newest evidence epoch that ended more than `revisit_gap_s` before `t_s`.
     pub(super) fn epoch_before(&self, t_s: f64) -> i64 {
-        ((t_s - self.cfg.revisit_gap_s) / self.cfg.evidence_epoch_s).floor() as i64 - 1
+        self.epoch_of(t_s - self.cfg.revisit_gap_s) - 1
     }
 
     /// Adds this sweep's samples: one per ground cell within the processing distance that
@@ -259,7 +259,7 @@ impl Mapper {
             .filter(|s| agrees(s.dz_m))
             .map(|s| s.old_epoch)
             .max()?;
-        let now = (t_s / self.cfg.evidence_epoch_s).floor() as i64;
+        let now = self.epoch_of(t_s);
         let until_epoch = newest_old + (now - newest_old) / 2;
         // A frame offset moves all the ground alike; samples that disagree more than that
         // are a changed scene (a car parked, a trunk fallen), not the frame.
