@@ -215,3 +215,43 @@ fn a_distant_view_from_a_later_visit_does_not_mark_a_step() {
     );
     assert_eq!(with, 0, "obstacle cells beside the column");
 }
+
+/// A verdict made from close by on evidence only ever seen from afar is no better than that
+/// evidence. A column seen from 19-25 m stands 10 cm proud of the ground around it (on `loop` a
+/// rebuild's correction did that); the robot then passes at 3.5 m without seeing the patch
+/// again (occluded) and judges the cells beside the column steps against it; later a view from
+/// 12.5-18.5 m, beyond the processing distance but nearer than the evidence those verdicts
+/// rested on, shows the ground flat. The cells beside the column clear; the column's own cells
+/// hold both heights, 10 cm apart, and stay obstacles on their variance.
+#[test]
+fn steps_judged_on_distant_evidence_clear_when_a_nearer_view_shows_flat_ground() {
+    let column = |x: f64, _: f64| (0.6..1.0).contains(&x);
+    let mut m = Mapper::new(Config::default()).unwrap();
+    let at = |y_m: f64| RobotPose { y_m, ..robot(0.0) };
+    let proud = |x: f64, y: f64| if column(x, y) { 0.1 } else { 0.0 };
+    // The cell on each side of the column.
+    let beside = |m: &Mapper| {
+        obstacles_in(m, (0.45, -2.9), (0.55, 2.9)) + obstacles_in(m, (1.05, -2.9), (1.15, 2.9))
+    };
+    m.update_points(ground(proud, |_, _| true), &at(-22.0), 0.0, Evidence::Scan)
+        .unwrap();
+    m.update_points(Vec::new(), &at(-3.5), 5.0, Evidence::Scan)
+        .unwrap();
+    let judged = beside(&m);
+    m.update_points(
+        ground(|_, _| 0.0, |_, _| true),
+        &at(-15.5),
+        10.0,
+        Evidence::Scan,
+    )
+    .unwrap();
+    assert!(
+        judged > 50,
+        "the close pass should judge the column's sides steps: {judged}"
+    );
+    assert_eq!(
+        beside(&m),
+        0,
+        "step cells beside the column after the nearer view"
+    );
+}

@@ -113,6 +113,10 @@ pub(super) struct CellData {
     pub(super) neg_range_m: f32,
     /// Closest robot distance from which the cell's current class was judged, metres.
     pub(super) class_range_m: f32,
+    /// Closest robot distance the evidence behind the current class had been seen from when it
+    /// was last judged from within the processing distance, metres: a verdict made from close
+    /// by on evidence only ever seen from afar is no better than that evidence.
+    pub(super) class_seen_m: f32,
     pub(super) epoch: i64,
     /// The `prev` epoch's index.
     pub(super) prev_epoch: i64,
@@ -149,6 +153,7 @@ impl Default for CellData {
             unaligned_s: f32::NEG_INFINITY,
             neg_range_m: f32::INFINITY,
             class_range_m: f32::INFINITY,
+            class_seen_m: f32::INFINITY,
             epoch: 0,
             prev_epoch: 0,
             pending: Moments::default(),

@@ -1,6 +1,6 @@
 //! The far rules (beyond the source): what a view from beyond the processing distance may still
 //! change about a cell. Out there a 10 cm face is a couple of sparse returns, so far evidence
-//! never clears an obstacle judged from close by and raises one only in three narrow cases,
+//! never clears an obstacle judged on close evidence and raises one only in three narrow cases,
 //! each a function here, tried in this order on the cell as it was before any of them:
 //!
 //! 1. [`Mapper::far_step`]: a cell judged traversable from close by whose lower neighbour,
@@ -8,7 +8,10 @@
 //! 2. [`Mapper::stair_continues`]: a cell left unknown from close by that the rules now find a
 //!    step, beside an obstacle judged from close by (a stair's upper treads);
 //! 3. [`Mapper::rejudge_wiped`]: an obstacle whose evidence free space wiped out here is judged
-//!    again, towards traversable or unknown only (a walker's trail behind the robot).
+//!    again, towards traversable or unknown only (a walker's trail behind the robot);
+//! 4. [`Mapper::rejudge_seen_nearer`]: an obstacle judged from close by on evidence seen only
+//!    from afar is judged again when nearer evidence comes in, towards traversable, overhung or
+//!    unknown only.
 
 use super::cell_data::CellData;
 use super::{Mapper, RobotPose};
@@ -28,6 +31,7 @@ impl Mapper {
         self.far_step(cx, cy, d, robot, changed);
         self.stair_continues(cx, cy, d, robot, changed);
         self.rejudge_wiped(cx, cy, d, robot, changed);
+        self.rejudge_seen_nearer(cx, cy, d, robot, changed);
     }
 
     /// A cell judged traversable from close by may still turn into an obstacle from out here:
@@ -129,6 +133,45 @@ impl Mapper {
                 changed.push((cx, cy));
             }
         }
+    }
+
+    /// An obstacle judged from close by on evidence seen only from beyond the processing
+    /// distance (`CellData::class_seen_m`) is judged again from what the cell holds once
+    /// evidence seen from nearer than that comes in, towards traversable, overhung (traversable,
+    /// but no beam ever showed the space above it empty) or unknown only. Such a verdict is
+    /// only as good as the far evidence it rested on: the robot passed within the processing
+    /// distance but saw nothing new of the cell. On `loop` with the graph on, a rebuild's
+    /// correction put a strip 23-29 m from the path 7 cm above its neighbours, the robot judged
+    /// it a step from 11-12 m on those returns, and a view from 13 m that showed it flat could
+    /// not clear it.
+    fn rejudge_seen_nearer(
+        &mut self,
+        cx: i64,
+        cy: i64,
+        d: &CellData,
+        robot: &RobotPose,
+        changed: &mut Vec<(i64, i64)>,
+    ) {
+        let pd = self.cfg.processing_distance_m as f32;
+        let nearer = d.class_seen_m > pd
+            && d.class_seen_m.is_finite()
+            && d.closest_view_m() < d.class_seen_m;
+        if d.class != Class::Obstacle || d.far_wiped || !nearer {
+            return;
+        }
+        let dist = self.distance_m(cx, cy, robot);
+        let v = self.rules.classify(&self.neighbourhood(cx, cy)).class();
+        let new = match v {
+            Class::Traversable if d.headroom => Class::Traversable,
+            Class::Traversable => Class::Overhung,
+            Class::Unknown => Class::Unknown,
+            _ => return,
+        };
+        let dm = self.data_mut(cx, cy);
+        dm.class = new;
+        dm.class_range_m = dist as f32;
+        dm.class_seen_m = d.closest_view_m();
+        changed.push((cx, cy));
     }
 
     /// Whether a step test (profile, neighbour or top) fires at a cell because of a neighbour

@@ -172,8 +172,10 @@ impl Mapper {
         } else {
             new
         };
+        let seen_m = d.closest_view_m();
         let dm = self.data_mut(cx, cy);
         dm.far_wiped = false;
+        dm.class_seen_m = seen_m;
         if new != old {
             dm.class = new;
             dm.class_range_m = dist;
