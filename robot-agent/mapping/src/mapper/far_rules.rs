@@ -117,13 +117,10 @@ impl Mapper {
         let again = d.class == Class::Obstacle && d.far_wiped;
         if again {
             let dist = self.distance_m(cx, cy, robot);
-            let nb = self.neighbourhood(cx, cy);
-            let v = self.rules.classify(&nb).class();
-            let new = match v {
-                Class::Traversable if d.headroom => Some(Class::Traversable),
-                Class::Unknown => Some(Class::Unknown),
-                _ => None,
-            };
+            // A wiped cell without headroom keeps its verdict rather than turn overhung.
+            let new = self
+                .cleared_class(cx, cy, d.headroom)
+                .filter(|&c| c != Class::Overhung);
             if let Some(c) = new.filter(|&c| c != d.class) {
                 let dm = self.data_mut(cx, cy);
                 dm.class = c;
@@ -159,19 +156,27 @@ impl Mapper {
         if d.class != Class::Obstacle || d.far_wiped || !nearer {
             return;
         }
-        let dist = self.distance_m(cx, cy, robot);
-        let v = self.rules.classify(&self.neighbourhood(cx, cy)).class();
-        let new = match v {
-            Class::Traversable if d.headroom => Class::Traversable,
-            Class::Traversable => Class::Overhung,
-            Class::Unknown => Class::Unknown,
-            _ => return,
+        let Some(new) = self.cleared_class(cx, cy, d.headroom) else {
+            return;
         };
+        let dist = self.distance_m(cx, cy, robot);
         let dm = self.data_mut(cx, cy);
         dm.class = new;
         dm.class_range_m = dist as f32;
         dm.class_seen_m = d.closest_view_m();
         changed.push((cx, cy));
+    }
+
+    /// What the rules make of a cell now, when that clears an obstacle: traversable (with
+    /// `headroom`), overhung (traversable without it) or unknown; `None` when they still find
+    /// an obstacle. The far rules clear towards these only.
+    fn cleared_class(&self, cx: i64, cy: i64, headroom: bool) -> Option<Class> {
+        match self.rules.classify(&self.neighbourhood(cx, cy)).class() {
+            Class::Traversable if headroom => Some(Class::Traversable),
+            Class::Traversable => Some(Class::Overhung),
+            Class::Unknown => Some(Class::Unknown),
+            _ => None,
+        }
     }
 
     /// Whether a step test (profile, neighbour or top) fires at a cell because of a neighbour
