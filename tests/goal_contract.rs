@@ -2,7 +2,10 @@
 //! (4 000 km from the robot) and one at (0, 0) are refused with their stable codes by the
 //! station's HTTP API, by `operator-station goal`, and by the robot itself when a peer puts the
 //! goal straight on its key. Real processes on loopback: `operator-station serve` and a simulated
-//! robot in the `station-field` world (datum 47.3769 N, 8.5417 E).
+//! robot in the `station-field` world (datum 47.3769 N, 8.5417 E). `operator-station goal` and
+//! `stop` then report what the robot's status showed: a goal the robot refused (in a keep-out
+//! zone the CLI does not check) fails with the robot's reason, a goal it took and a stop are
+//! confirmed.
 
 mod station_support;
 
@@ -23,18 +26,26 @@ fn post_goal(station: &Station, body: &str) -> (u16, Value) {
     (st, serde_json::from_str(&b).unwrap_or(Value::Null))
 }
 
-/// `operator-station goal --gnss LAT,LON`: exit status and stderr.
-fn cli_goal(station: &Station, gnss: &str) -> (bool, String) {
+/// `operator-station ARGS --robot r1 --connect ENDPOINT`: exit status, stdout and stderr.
+fn cli(station: &Station, args: &[&str]) -> (bool, String, String) {
     let out = Command::new(bin("operator-station"))
-        .args(["goal", "--robot", "r1", "--gnss", gnss, "--connect"])
+        .args(args)
+        .args(["--robot", "r1", "--connect"])
         .arg(station.ports.endpoint())
         .stdin(Stdio::null())
         .output()
-        .expect("run operator-station goal");
+        .expect("run operator-station");
     (
         out.status.success(),
+        String::from_utf8_lossy(&out.stdout).to_string(),
         String::from_utf8_lossy(&out.stderr).to_string(),
     )
+}
+
+/// `operator-station goal --gnss LAT,LON`: exit status and stderr.
+fn cli_goal(station: &Station, gnss: &str) -> (bool, String) {
+    let (ok, _, err) = cli(station, &["goal", "--gnss", gnss]);
+    (ok, err)
 }
 
 fn refused(robot: &Value) -> u64 {
@@ -42,7 +53,8 @@ fn refused(robot: &Value) -> u64 {
 }
 
 #[test]
-fn swapped_and_null_island_goals_are_refused_at_the_api_the_cli_and_the_robot() {
+fn swapped_and_null_island_goals_are_refused_at_the_api_the_cli_and_the_robot_and_the_cli_confirms_what_the_robot_took(
+) {
     let dir = tempfile::tempdir().unwrap();
     let station = Station::start(Ports::new(), &dir.path().join("s.db"));
     let _robot = Robot::start(
@@ -119,4 +131,66 @@ fn swapped_and_null_island_goals_are_refused_at_the_api_the_cli_and_the_robot() 
     );
     let err = last["status"]["last_error"].as_str().unwrap_or("");
     assert!(err.contains("null_island"), "{err}");
+
+    // A keep-out zone drawn at the station: the CLI does not check zones, the robot does, and
+    // the CLI says so from the robot's status instead of reporting the goal as sent.
+    let datum = last["datum_id"].as_str().expect("datum id").to_string();
+    let fc = r#"{"type":"FeatureCollection","features":[{"type":"Feature","properties":{"kind":"keep_out","name":"pond"},"geometry":{"type":"Polygon","coordinates":[[[10,10],[14,10],[14,14],[10,14],[10,10]]]}}]}"#;
+    let (st, b) = http(
+        station.ports.http,
+        "POST",
+        &format!("/api/zones?frame=map&datum_id={datum}"),
+        fc,
+    )
+    .expect("answer");
+    assert_eq!(st, 201, "{b}");
+    assert!(
+        wait_for(Duration::from_secs(20), || {
+            robot_entry(station.ports.http, "r1")
+                .is_some_and(|r| r["status"]["zones_version"].as_u64() > Some(0))
+        }),
+        "the zone never reached the robot"
+    );
+    let (ok, out, err) = cli(&station, &["goal", "--xy", "12,12"]);
+    assert!(!ok, "a goal in a keep-out zone reported as taken: {out}");
+    assert!(
+        err.contains("refused by robot r1") && err.contains("keep-out"),
+        "the CLI gives the robot's reason: {err}"
+    );
+
+    // A goal the robot takes: confirmed from its status, which shows the goal's id.
+    let (ok, out, err) = cli(&station, &["goal", "--xy", "6,0"]);
+    assert!(ok, "{err}");
+    let sent: Value = serde_json::from_str(out.trim()).expect("one JSON line");
+    assert_eq!(sent["confirmed"], true, "{sent}");
+    assert!(sent["attempts"].as_u64() >= Some(1), "{sent}");
+    let goal_id = sent["sent"]["goal_id"].as_u64().expect("goal id");
+    assert!(
+        wait_for(Duration::from_secs(10), || {
+            robot_entry(station.ports.http, "r1")
+                .is_some_and(|r| r["status"]["goal_id"].as_u64() == Some(goal_id))
+        }),
+        "the station never saw goal {goal_id}"
+    );
+    println!(
+        "goal {goal_id} confirmed after {} send(s): {} / {}",
+        sent["attempts"], sent["mission"], sent["reason"]
+    );
+
+    // The stop: confirmed once the robot shows itself halted.
+    let (ok, out, err) = cli(&station, &["stop"]);
+    assert!(ok, "{err}");
+    let sent: Value = serde_json::from_str(out.trim()).expect("one JSON line");
+    assert_eq!(sent["confirmed"], true, "{sent}");
+    assert!(
+        sent["mission"] != "Driving" && sent["mission"] != "Planning",
+        "{sent}"
+    );
+    assert!(
+        wait_for(Duration::from_secs(10), || {
+            robot_entry(station.ports.http, "r1")
+                .is_some_and(|r| r["status"]["mission"] == "Stopped")
+        }),
+        "the station never saw the robot stopped"
+    );
 }

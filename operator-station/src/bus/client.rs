@@ -1,13 +1,14 @@
 //! The short-lived Zenoh sessions of the CLI commands (`robots`, `goal`, `stop`): who is alive,
-//! a robot's session and position, and one command sent in its envelope.
+//! a robot's session and position, and a command sent until the robot's status shows it.
 
 use std::time::Duration;
 
 use common::command::RobotContext;
 use common::keys::{self, RobotId, Topic};
-use common::msg::{self, Session};
+use common::msg::{self, Session, Status};
 use zenoh::query::ConsolidationMode;
 
+use super::confirm::{Delivery, Expect, Policy, Step};
 use crate::station;
 
 /// Opens a session with `zc`.
@@ -60,21 +61,108 @@ pub async fn robot_session_msg(
     session
 }
 
-/// Sends one command in its envelope (this call's own sender id) and closes the session.
-pub async fn put_and_close<T: serde::Serialize>(
+/// How a command sent with [`send_confirmed`] ended.
+#[derive(Debug)]
+pub enum Sent {
+    /// A status showed it taken after `attempts` sends; `status` is that status.
+    Taken {
+        /// Sends made.
+        attempts: u32,
+        /// The status that showed it.
+        status: Box<Status>,
+    },
+    /// The robot refused it.
+    Refused {
+        /// The robot's reason (its `last_error`).
+        reason: String,
+        /// Sends made.
+        attempts: u32,
+    },
+    /// No status showed it after every send.
+    Unconfirmed {
+        /// Sends made.
+        attempts: u32,
+        /// Statuses received after the first send.
+        statuses: u32,
+        /// The last of them.
+        last: Option<Box<Status>>,
+    },
+}
+
+/// The robot's first status within `wait` on `sub` (None: none came or none decoded).
+async fn first_status(
+    sub: &zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>,
+    wait: Duration,
+) -> Option<Status> {
+    let deadline = tokio::time::Instant::now() + wait;
+    while let Ok(Ok(sample)) = tokio::time::timeout_at(deadline, sub.recv_async()).await {
+        if let Ok(s) = msg::decode::<Status>(&sample.payload().to_bytes()) {
+            return Some(s);
+        }
+    }
+    None
+}
+
+/// Sends a command in its envelope (this call's own sender id, a fresh sequence number for every
+/// send) until the robot's status shows it taken or refused, at most `policy.attempts` times
+/// (`confirm`), then closes the session. `expect` is built from the status the robot published
+/// before the first send (if one came within `baseline_wait`), so a goal id can be chosen that
+/// the robot is not already showing.
+pub async fn send_confirmed<T: serde::Serialize>(
     s: zenoh::Session,
     rid: &RobotId,
     topic: Topic,
-    cmd: &T,
-) -> anyhow::Result<()> {
-    let stamper = common::command::CommandStamper::new(super::sender_id(&s));
-    let payload = msg::encode_cmd(stamper.next(station::now_unix_ms()), cmd);
-    let r = super::put_command(&s, keys::key(rid, topic), payload)
+    cmd: impl FnOnce(Option<&Status>) -> (T, Expect),
+    policy: Policy,
+    baseline_wait: Duration,
+) -> anyhow::Result<(T, Sent)> {
+    let sub = s
+        .declare_subscriber(keys::key(rid, Topic::Status))
         .await
-        .map_err(|e| anyhow::anyhow!(e));
-    tokio::time::sleep(Duration::from_millis(200)).await;
+        .map_err(|e| anyhow::anyhow!("subscribe to {rid}'s status: {e}"))?;
+    let baseline = first_status(&sub, baseline_wait).await;
+    let (cmd, expect) = cmd(baseline.as_ref());
+    let mut delivery = Delivery::new(expect, policy, baseline);
+    let stamper = common::command::CommandStamper::new(super::sender_id(&s));
+    let t0 = tokio::time::Instant::now();
+    let result = loop {
+        match delivery.step(t0.elapsed().as_secs_f64()) {
+            Step::Send => {
+                let payload = msg::encode_cmd(stamper.next(station::now_unix_ms()), &cmd);
+                if let Err(e) = super::put_command(&s, keys::key(rid, topic), payload).await {
+                    break Err(anyhow::anyhow!(e));
+                }
+                delivery.sent(t0.elapsed().as_secs_f64());
+            }
+            Step::WaitUntil(t_s) => {
+                let deadline = t0 + Duration::from_secs_f64(t_s);
+                match tokio::time::timeout_at(deadline, sub.recv_async()).await {
+                    Ok(Ok(sample)) => {
+                        if let Ok(st) = msg::decode::<Status>(&sample.payload().to_bytes()) {
+                            delivery.status(st);
+                        }
+                    }
+                    Ok(Err(e)) => break Err(anyhow::anyhow!("{rid}'s status: {e}")),
+                    Err(_) => {}
+                }
+            }
+            Step::Taken { attempts } => {
+                let status = Box::new(delivery.last_status().cloned().unwrap_or_default());
+                break Ok(Sent::Taken { attempts, status });
+            }
+            Step::Refused { reason, attempts } => break Ok(Sent::Refused { reason, attempts }),
+            Step::Unconfirmed { attempts, statuses } => {
+                break Ok(Sent::Unconfirmed {
+                    attempts,
+                    statuses,
+                    last: delivery.last_status().cloned().map(Box::new),
+                })
+            }
+        }
+    };
+    drop(sub);
     let _ = s.close().await;
-    r
+    result.map(|sent| (cmd, sent))
 }
 
 /// The robot's position from one of its poses (it publishes them at 10 Hz), for the goal

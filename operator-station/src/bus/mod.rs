@@ -5,6 +5,7 @@
 //! as `(key, payload)` and sends commands as encoded payloads.
 
 pub mod client;
+pub mod confirm;
 pub mod secure;
 pub mod subscribe;
 

@@ -20,7 +20,8 @@ use common::keys::{RobotId, Topic};
 use common::msg::{self, GoalCmd, GoalTarget, Session, StopCmd};
 
 use crate::api::{self, AppState};
-use crate::bus::client::{self, alive_robots, put_and_close, robot_context};
+use crate::bus::client::{self, alive_robots, robot_context, send_confirmed, Sent};
+use crate::bus::confirm::{Expect, Policy};
 use crate::security::{self, RegisterWatch};
 use crate::station::{self, Station, StationOptions, DEFAULT_LISTEN_ENDPOINT};
 
@@ -227,6 +228,30 @@ pub struct GoalArgs {
     /// Zenoh options.
     #[command(flatten)]
     pub client: ClientArgs,
+    /// Sending until the robot shows the goal.
+    #[command(flatten)]
+    pub delivery: DeliveryArgs,
+}
+
+/// How `goal` and `stop` make sure the robot took the command: it is sent again until the
+/// robot's status shows it (its goal id; halted), the robot refuses it, or the sends run out.
+#[derive(Debug, Clone, clap::Args)]
+pub struct DeliveryArgs {
+    /// Sends at most, the first included.
+    #[arg(long, default_value_t = Policy::default().attempts)]
+    pub attempts: u32,
+    /// How long to wait for a status showing the command before sending it again, seconds.
+    #[arg(long, default_value_t = Policy::default().confirm_s)]
+    pub confirm_s: f64,
+}
+
+impl DeliveryArgs {
+    fn policy(&self) -> Policy {
+        Policy {
+            attempts: self.attempts,
+            confirm_s: self.confirm_s,
+        }
+    }
 }
 
 /// `stop` options.
@@ -238,6 +263,9 @@ pub struct StopArgs {
     /// Zenoh options.
     #[command(flatten)]
     pub client: ClientArgs,
+    /// Sending until the robot shows itself halted.
+    #[command(flatten)]
+    pub delivery: DeliveryArgs,
 }
 
 /// `export` options.
@@ -1034,16 +1062,51 @@ async fn robot_session(c: &ClientArgs, robot: &str) -> anyhow::Result<zenoh::Ses
     Ok(s)
 }
 
-/// Sends `cmd` to a robot that is online.
-async fn send_to_robot<T: serde::Serialize>(
-    c: &ClientArgs,
+/// Prints how a command ended (one JSON line on stdout) and turns a refusal or an unconfirmed
+/// send into an error (so scripts see a non-zero exit status).
+fn report_sent<T: serde::Serialize>(
     robot: &str,
-    topic: Topic,
     cmd: &T,
+    sent: Sent,
+    shows: &str,
 ) -> anyhow::Result<()> {
-    let rid = RobotId::new(robot)?;
-    let s = robot_session(c, robot).await?;
-    put_and_close(s, &rid, topic, cmd).await
+    match sent {
+        Sent::Taken { attempts, status } => {
+            println!(
+                "{}",
+                serde_json::json!({
+                    "ok": true, "robot": robot, "sent": cmd, "confirmed": true,
+                    "attempts": attempts, "mode": status.mode, "mission": status.mission,
+                    "reason": status.reason,
+                })
+            );
+            Ok(())
+        }
+        Sent::Refused { reason, attempts } => {
+            bail!("refused by robot {robot} (after {attempts} send(s)): {reason}")
+        }
+        Sent::Unconfirmed {
+            attempts,
+            statuses: 0,
+            ..
+        } => bail!(
+            "sent {attempts} time(s), but no status came from robot {robot} (is its status reaching this session?); it may or may not have taken it"
+        ),
+        Sent::Unconfirmed {
+            attempts,
+            statuses,
+            last,
+        } => {
+            let last = last.unwrap_or_default();
+            bail!(
+                "sent {attempts} time(s); none of the robot's {statuses} status(es) since showed {shows} (last: mode {:?}, mission {:?}, goal id {}, \"{}\")",
+                last.mode,
+                last.mission,
+                last.goal_id,
+                last.reason
+            )
+        }
+    }
 }
 
 async fn goal(a: GoalArgs) -> anyhow::Result<()> {
@@ -1078,24 +1141,46 @@ async fn goal(a: GoalArgs) -> anyhow::Result<()> {
         let _ = s.close().await;
         bail!("goal refused: {} [{}]", r.message, r.code.as_str());
     }
-    put_and_close(s, &rid, Topic::CmdGoal, &cmd).await?;
-    println!(
-        "{}",
-        serde_json::json!({"ok": true, "robot": a.robot, "sent": cmd})
-    );
-    Ok(())
+    let wait = Duration::from_secs_f64(a.client.wait_s.max(0.2));
+    let (cmd, sent) = send_confirmed(
+        s,
+        &rid,
+        Topic::CmdGoal,
+        |before| {
+            // An id the robot is not showing already, or its status could not tell this goal.
+            let mut cmd = cmd;
+            if before.is_some_and(|b| b.goal_id == cmd.goal_id) {
+                cmd.goal_id = cmd.goal_id.wrapping_add(1);
+            }
+            let expect = Expect::Goal {
+                goal_id: cmd.goal_id,
+            };
+            (cmd, expect)
+        },
+        a.delivery.policy(),
+        wait,
+    )
+    .await?;
+    report_sent(&a.robot, &cmd, sent, "this goal's id")
 }
 
 async fn stop(a: StopArgs) -> anyhow::Result<()> {
     let cmd = StopCmd {
         reason: "operator-station stop".into(),
     };
-    send_to_robot(&a.client, &a.robot, Topic::CmdStop, &cmd).await?;
-    println!(
-        "{}",
-        serde_json::json!({"ok": true, "robot": a.robot, "sent": cmd})
-    );
-    Ok(())
+    let rid = RobotId::new(&a.robot)?;
+    let s = robot_session(&a.client, &a.robot).await?;
+    let wait = Duration::from_secs_f64(a.client.wait_s.max(0.2));
+    let (cmd, sent) = send_confirmed(
+        s,
+        &rid,
+        Topic::CmdStop,
+        |_| (cmd, Expect::Halted),
+        a.delivery.policy(),
+        wait,
+    )
+    .await?;
+    report_sent(&a.robot, &cmd, sent, "it halted")
 }
 
 fn export(a: ExportArgs) -> anyhow::Result<()> {
