@@ -300,7 +300,7 @@ impl TerrainMap {
             |cx, cy| cells.dz_m(cx, cy),
         );
         tracing::info!(
-            "map rebuild swapped in at {t_s:.2} s: {} kept sweeps fed since {:.2} s, {} of {held} tiles replaced, {} of their cells within reach of a move, {} of those rebuilt, {thinned} sweeps kept meanwhile thinned to the spacing",
+            "map rebuild swapped in at {t_s:.2} s: {} kept sweeps fed since {:.2} s, {} of {held} tiles replaced, {} of their cells within reach of a move, {} of those rebuilt ({} obstacles the live map held traversable cleared), {thinned} sweeps kept meanwhile thinned to the spacing",
             sh.fed,
             sh.started_s,
             r.tiles.len(),
@@ -308,6 +308,7 @@ impl TerrainMap {
                 .stale_cells()
                 .map_or_else(|| "all".to_string(), |n| n.to_string()),
             r.rebuilt_cells,
+            r.thinned_cleared,
         );
         self.rebuilds += 1;
         Ok(r.tiles)

@@ -170,7 +170,7 @@ impl Mapper {
     /// What the rules make of a cell now, when that clears an obstacle: traversable (with
     /// `headroom`), overhung (traversable without it) or unknown; `None` when they still find
     /// an obstacle. The far rules clear towards these only.
-    fn cleared_class(&self, cx: i64, cy: i64, headroom: bool) -> Option<Class> {
+    pub(super) fn cleared_class(&self, cx: i64, cy: i64, headroom: bool) -> Option<Class> {
         match self.rules.classify(&self.neighbourhood(cx, cy)).class() {
             Class::Traversable if headroom => Some(Class::Traversable),
             Class::Traversable => Some(Class::Overhung),

@@ -123,7 +123,7 @@ impl Mapper {
     /// The final cell: state and cost from the class and the nearest inflation source. `kept`:
     /// the state and cost a traversable cell is to show, known already (no source near it
     /// changed since it was computed, or its nearest source was found another way).
-    fn output_cell(&self, cx: i64, cy: i64, kept: Option<(CellState, u8)>) -> Cell {
+    pub(super) fn output_cell(&self, cx: i64, cy: i64, kept: Option<(CellState, u8)>) -> Cell {
         let Some(d) = self.data(cx, cy) else {
             return Cell::UNKNOWN;
         };

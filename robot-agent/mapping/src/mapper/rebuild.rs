@@ -4,6 +4,7 @@
 //! says which tiles a station must be sent again.
 
 use super::{Mapper, TileSlot};
+use crate::classify::Class;
 use common::grid::{Cell, CellState, TileIndex};
 
 impl Mapper {
@@ -55,6 +56,7 @@ impl Mapper {
             keep_cells(to, from, &lattice, &rebuilt_cell, &dz_of, min_points)
         };
         let mut rebuilt_cells = 0;
+        let mut doubted: Vec<(i64, i64, f32)> = Vec::new();
         let stamp = super::evidence::stamp_of(t_s);
         let n = lattice.tile_cells as usize;
         let mut own: Vec<Option<TileSlot>> = self.slots.drain(..).map(Some).collect();
@@ -70,7 +72,10 @@ impl Mapper {
                 c.stamp_s = c.stamp_s.max(stamp);
             }
             match self.slot_of.get(&s.index).and_then(|&i| own[i].take()) {
-                Some(o) => rebuilt_cells += keep(&mut s, &o),
+                Some(o) => {
+                    rebuilt_cells += keep(&mut s, &o);
+                    doubted.extend(obstacles_only_rebuilt(&s, &o, &lattice, &rebuilt_cell));
+                }
                 None => rebuilt_cells += n * n,
             }
             slots.push(s);
@@ -120,11 +125,82 @@ impl Mapper {
             .set((TileIndex { tx: 0, ty: 0 }, usize::MAX));
         tiles.sort_unstable();
         *self = rebuilt;
+        let thinned_cleared = self.rejudge_thinned(&doubted);
         Replaced {
             tiles,
             rebuilt_cells,
+            thinned_cleared,
         }
     }
+}
+
+impl Mapper {
+    /// Judges again the rebuilt obstacles that the live map, made from every sweep, held
+    /// traversable (`doubted`: cell and the distance the live verdict was made from): the
+    /// rebuild sees one sweep in `map_rebuild_spacing_m`'s worth, and a verdict it made on a few
+    /// returns is kept only if the rules still find an obstacle on the merged map's evidence
+    /// (rebuilt cells beside the live cells the swap kept). Towards traversable, overhung or
+    /// unknown only, as the far rules ([`Mapper::cleared_class`]); the outputs around a cleared
+    /// cell are written at once, wherever the robot is. Returns how many it cleared.
+    fn rejudge_thinned(&mut self, doubted: &[(i64, i64, f32)]) -> usize {
+        let mut cleared: Vec<(i64, i64)> = Vec::new();
+        for &(cx, cy, live_range_m) in doubted {
+            let Some(d) = self.data(cx, cy).copied() else {
+                continue;
+            };
+            if d.class != Class::Obstacle || d.far_wiped {
+                continue;
+            }
+            if let Some(new) = self.cleared_class(cx, cy, d.headroom) {
+                let dm = self.data_mut(cx, cy);
+                dm.class = new;
+                dm.class_range_m = live_range_m;
+                cleared.push((cx, cy));
+            }
+        }
+        let rc = (self.cfg.cost_distance_m / self.cfg.grid_size_m).ceil() as i64;
+        let mut around: Vec<(i64, i64)> = cleared
+            .iter()
+            .flat_map(|&(cx, cy)| {
+                (-rc..=rc).flat_map(move |dy| (-rc..=rc).map(move |dx| (cx + dx, cy + dy)))
+            })
+            .collect();
+        around.sort_unstable();
+        around.dedup();
+        for (cx, cy) in around {
+            if self.data(cx, cy).is_some() {
+                let cell = self.output_cell(cx, cy, None);
+                self.write_live(cx, cy, cell);
+            }
+        }
+        cleared.len()
+    }
+}
+
+/// The cells of a stale tile the rebuilt map (`to`) claims and holds as obstacles where this
+/// map (`from`, every sweep) held them traversable, with the distance that verdict was made
+/// from.
+fn obstacles_only_rebuilt(
+    to: &TileSlot,
+    from: &TileSlot,
+    lattice: &common::grid::Lattice,
+    rebuilt_cell: impl Fn(i64, i64) -> bool,
+) -> Vec<(i64, i64, f32)> {
+    let n = lattice.tile_cells as usize;
+    let (cx0, cy0) = lattice.tile_first_cell(to.index);
+    (0..n * n)
+        .filter(|&k| {
+            to.data[k].class == Class::Obstacle && from.data[k].class == Class::Traversable
+        })
+        .map(|k| {
+            (
+                cx0 + (k % n) as i64,
+                cy0 + (k / n) as i64,
+                from.data[k].class_range_m,
+            )
+        })
+        .filter(|&(cx, cy, _)| rebuilt_cell(cx, cy))
+        .collect()
 }
 
 /// What [`Mapper::replace_cells_with`] did.
@@ -134,6 +210,9 @@ pub struct Replaced {
     pub tiles: Vec<TileIndex>,
     /// Cells of the stale tiles that are the rebuilt map's.
     pub rebuilt_cells: usize,
+    /// Of those, obstacles of the rebuilt map that the live map held traversable and the rules
+    /// no longer find on the merged map (cleared; [`Mapper::replace_cells_with`]).
+    pub thinned_cleared: usize,
 }
 
 /// Copies into `to` (the rebuilt tile) the cells of `from` (this map's, the same tile) that
@@ -315,6 +394,74 @@ mod tests {
         assert_eq!(now.height_cm, was.height_cm + 5, "and moves up 5 cm");
         let (sx, sy) = l.cell_of(3.0, 0.1);
         assert_eq!(drifted.cell(sx, sy).stamp_s, 17, "a rebuilt cell");
+    }
+
+    #[test]
+    fn a_rebuilt_obstacle_the_live_map_held_traversable_stays_only_if_the_rules_still_find_it() {
+        use common::grid::CellState;
+        // The rebuilt map's own verdicts, planted: an obstacle on open ground at (3, 2) that its
+        // evidence (flat ground) no longer supports, as a verdict made on a few returns of one
+        // sweep in six and kept since; and one at (3, -2) that the live map has too.
+        let mut live = mapped(0.0);
+        let l = live.lattice();
+        let open = l.cell_of(3.0, 2.0);
+        let both = l.cell_of(3.0, -2.0);
+        let the_box = ((5.3, 6.7), (-0.7, 0.7));
+        let box_cells = obstacles_in(&live, the_box.0, the_box.1);
+        assert_eq!(live.class(open.0, open.1), Class::Traversable);
+        assert!(box_cells > 0, "the box");
+        live.data_mut(both.0, both.1).class = Class::Obstacle;
+        let rebuilt = || {
+            let mut m = mapped(0.0);
+            m.data_mut(open.0, open.1).class = Class::Obstacle;
+            m.data_mut(both.0, both.1).class = Class::Obstacle;
+            m
+        };
+        let r = live.replace_cells_with(rebuilt(), 17.0, |_| true, |_, _| true, |_, _| 0.0);
+        assert_eq!(
+            r.thinned_cleared, 1,
+            "only the one the live map did not have"
+        );
+        assert_eq!(live.class(open.0, open.1), Class::Traversable);
+        let c = live.cell(open.0, open.1);
+        assert_eq!(
+            (c.state, c.cost),
+            (CellState::Traversable, 0),
+            "its output too"
+        );
+        let (nx, ny) = (open.0 + 1, open.1);
+        assert_eq!(
+            live.cell(nx, ny).state,
+            CellState::Traversable,
+            "no inflation left"
+        );
+        assert_eq!(
+            live.class(both.0, both.1),
+            Class::Obstacle,
+            "both maps had it"
+        );
+        assert_eq!(
+            obstacles_in(&live, the_box.0, the_box.1),
+            box_cells,
+            "the rules still find the box"
+        );
+
+        // Where the swap keeps the live cell, nothing is judged again.
+        let mut live = mapped(0.0);
+        live.data_mut(both.0, both.1).class = Class::Obstacle;
+        let r = live.replace_cells_with(
+            rebuilt(),
+            17.0,
+            |_| true,
+            |cx, cy| (cx, cy) != open,
+            |_, _| 0.0,
+        );
+        assert_eq!(r.thinned_cleared, 0);
+        assert_eq!(
+            live.class(open.0, open.1),
+            Class::Traversable,
+            "the live cell"
+        );
     }
 
     #[test]
