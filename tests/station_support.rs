@@ -14,7 +14,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use common::grid::{decode_tile, encode_tile, Cell, CellState, Lattice, Tile, TileIndex};
-use common::keys::{self, RobotId};
+use common::keys::{self, RobotId, Topic};
 use common::msg::{Datum, MapFrame, Session};
 use robot_agent::bus::{BusConfig, BusHandle, ZenohSettings};
 use serde_json::Value;
@@ -357,6 +357,7 @@ pub struct Observer {
     /// The session.
     pub session: zenoh::Session,
     subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
+    tokens: Vec<zenoh::liveliness::LivelinessToken>,
 }
 
 /// One message an [`Observer`] heard: when, on which key, how many payload bytes, the payload.
@@ -443,6 +444,7 @@ impl Observer {
             rt,
             session,
             subscribers: Vec::new(),
+            tokens: Vec::new(),
         })
     }
 
@@ -537,6 +539,22 @@ impl Observer {
             }
             out
         })
+    }
+
+    /// Declares `robot`'s liveliness token, held as long as this observer: a station sees the
+    /// robot online.
+    pub fn declare_alive(&mut self, robot: &str) {
+        let rid = RobotId::new(robot).expect("robot id");
+        let token = self
+            .rt
+            .block_on(async {
+                self.session
+                    .liveliness()
+                    .declare_token(keys::key(&rid, Topic::Alive))
+                    .await
+            })
+            .expect("liveliness token");
+        self.tokens.push(token);
     }
 
     /// Puts raw bytes on a key.

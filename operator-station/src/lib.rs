@@ -9,6 +9,7 @@ pub mod api;
 pub mod basemap;
 pub mod bus;
 pub mod cli;
+pub mod deliveries;
 pub mod export;
 pub mod fleet;
 pub mod history;

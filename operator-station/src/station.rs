@@ -183,6 +183,9 @@ pub struct Inner {
     pub missions: Mutex<BTreeMap<String, Mission>>,
     /// Mission runs by robot (the last one of each robot, also when it ended).
     pub runs: Mutex<BTreeMap<String, Run>>,
+    /// The goal or stop sent to each robot through the API that its status has not shown yet
+    /// ([`crate::deliveries`]).
+    pub deliveries: Mutex<BTreeMap<String, crate::deliveries::Pending>>,
     /// The alert list.
     pub alerts: Mutex<Alerts>,
     /// History period of the merged map, seconds (0: none kept).
@@ -673,6 +676,84 @@ impl Inner {
         for run in changed {
             self.emit(json!({"type": "mission_run", "run": run}).to_string());
         }
+        let latest = |robot: &str| snap.iter().find(|s| s.0 == robot).and_then(|s| s.2.clone());
+        self.deliver_pending(latest).await;
+    }
+
+    /// Sends again the API's goals and stops that no status has shown yet, and forgets those
+    /// shown taken or refused, or sent every time without being shown (logged).
+    async fn deliver_pending(self: &Arc<Self>, latest: impl Fn(&str) -> Option<Status>) {
+        use crate::bus::confirm::Step;
+        let now = std::time::Instant::now();
+        let mut again = Vec::new();
+        self.deliveries
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .retain(|robot, p| {
+                let kind = p.command.kind();
+                match p.step(latest(robot).as_ref(), now) {
+                    Step::WaitUntil(_) => true,
+                    Step::Send => {
+                        p.sent_again(now);
+                        again.push((robot.clone(), p.command.clone()));
+                        true
+                    }
+                    Step::Taken { attempts } => {
+                        if attempts > 1 {
+                            tracing::info!("{kind} to {robot} taken after {attempts} sends");
+                        }
+                        false
+                    }
+                    Step::Refused { reason, .. } => {
+                        tracing::info!("{kind} to {robot} refused by the robot: {reason}");
+                        false
+                    }
+                    Step::Unconfirmed { attempts, statuses } => {
+                        tracing::warn!(
+                            "{kind} to {robot}: sent {attempts} times, none of its {statuses} statuses since showed it"
+                        );
+                        false
+                    }
+                }
+            });
+        for (robot, command) in again {
+            let Ok(id) = RobotId::new(robot.clone()) else {
+                continue;
+            };
+            let kind = command.kind();
+            tracing::info!("{kind} to {robot} sent again: no status has shown it yet");
+            let payload = command.payload(self.cmd_header());
+            if let Err(e) =
+                crate::bus::put_command(&self.session(), keys::key(&id, command.topic()), payload)
+                    .await
+            {
+                tracing::warn!("{kind} to {robot}: {e}");
+            }
+        }
+    }
+
+    /// Forgets the command waiting to be shown for `robot` (a newer one replaces it).
+    pub fn supersede(&self, robot: &str) {
+        self.deliveries
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .remove(robot);
+    }
+
+    /// Sends `command` again until `robot`'s status shows it (it was just sent once).
+    pub fn follow_up(&self, robot: &str, command: crate::deliveries::Command) {
+        let before = self
+            .fleet
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .robots
+            .get(robot)
+            .and_then(|r| r.status.clone());
+        let p = crate::deliveries::Pending::sent(command, before, std::time::Instant::now());
+        self.deliveries
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .insert(robot.to_string(), p);
     }
 
     /// Keeps an alert that was raised, resolved or acknowledged, and tells the browsers.
@@ -687,6 +768,7 @@ impl Inner {
     /// Sends what a mission run asks for.
     pub async fn send_run_action(self: &Arc<Self>, robot: &str, act: RunAction) {
         let Ok(id) = RobotId::new(robot) else { return };
+        self.supersede(robot);
         let h = self.cmd_header();
         let (topic, payload) = match act {
             RunAction::Goal { goal_id, target } => (
@@ -857,6 +939,7 @@ impl Station {
             }),
             missions: Mutex::new(mission_rows),
             runs: Mutex::new(BTreeMap::new()),
+            deliveries: Mutex::new(BTreeMap::new()),
             alerts: Mutex::new(Alerts::restore(opts.alerts, alert_rows)),
             map_history_s: opts.map_history_s,
             history: Default::default(),

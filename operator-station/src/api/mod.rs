@@ -683,6 +683,8 @@ async fn put<T: serde::Serialize>(
     topic: Topic,
     cmd: &T,
 ) -> ApiResult<()> {
+    // A newer command replaces one still being followed up (never resend an old goal over it).
+    st.inner.supersede(robot.as_str());
     let payload = msg::encode_cmd(st.inner.cmd_header(), cmd);
     crate::bus::put_command(&st.inner.session(), keys::key(robot, topic), payload)
         .await
@@ -795,6 +797,8 @@ async fn cmd_goal(
     check_goal(&cmd, &CommandLimits::default(), &goal_context(&st, &robot))
         .map_err(ApiError::from)?;
     put(&st, &id, Topic::CmdGoal, &cmd).await?;
+    st.inner
+        .follow_up(&robot, crate::deliveries::Command::Goal(cmd.clone()));
     let sent = serde_json::to_value(&cmd).map_err(internal)?;
     st.inner.store(StoreOp::Goal {
         robot: robot.clone(),
@@ -821,6 +825,8 @@ async fn cmd_stop(
         reason: b.reason.unwrap_or_else(|| "operator".into()),
     };
     put(&st, &id, Topic::CmdStop, &cmd).await?;
+    st.inner
+        .follow_up(&robot, crate::deliveries::Command::Stop(cmd.clone()));
     Ok(accepted(serde_json::to_value(&cmd).map_err(internal)?))
 }
 
