@@ -704,6 +704,12 @@ impl Inner {
                         }
                         false
                     }
+                    Step::Superseded { goal_id, .. } => {
+                        tracing::info!(
+                            "{kind} to {robot} not sent again: it took goal {goal_id} from another sender"
+                        );
+                        false
+                    }
                     Step::Refused { reason, .. } => {
                         tracing::info!("{kind} to {robot} refused by the robot: {reason}");
                         false

@@ -71,6 +71,13 @@ pub enum Sent {
         /// The status that showed it.
         status: Box<Status>,
     },
+    /// Another sender's newer goal took over before a status showed it.
+    Superseded {
+        /// The goal the robot shows.
+        goal_id: u32,
+        /// Sends made.
+        attempts: u32,
+    },
     /// The robot refused it.
     Refused {
         /// The robot's reason (its `last_error`).
@@ -151,6 +158,9 @@ pub async fn send_confirmed<T: serde::Serialize>(
                 break Ok(Sent::Taken { attempts, status });
             }
             Step::Refused { reason, attempts } => break Ok(Sent::Refused { reason, attempts }),
+            Step::Superseded { goal_id, attempts } => {
+                break Ok(Sent::Superseded { goal_id, attempts })
+            }
             Step::Unconfirmed { attempts, statuses } => {
                 break Ok(Sent::Unconfirmed {
                     attempts,

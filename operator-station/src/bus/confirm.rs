@@ -38,12 +38,19 @@ pub enum Verdict {
     Taken,
     /// The robot refused the command; its reason.
     Refused(String),
+    /// The robot took a newer goal than the one it showed before the send, and not this
+    /// command's: another sender commanded it since, and sending this again would undo that.
+    Superseded {
+        /// The goal the robot shows now.
+        goal_id: u32,
+    },
 }
 
 /// Judges `s` against `expect`. `baseline` is a status received before the first send: a refusal
 /// counts only when the robot's refusal counter has grown past it and its last error is about
-/// this kind of command and new (without a baseline a refusal cannot be told from an old one, so
-/// none is reported).
+/// this kind of command and new, and, for a goal, another goal driven (not the baseline's nor
+/// this one) means another sender's newer goal (without a baseline neither can be told from old
+/// news, so the command stays pending).
 pub fn judge(expect: &Expect, baseline: Option<&Status>, s: &Status) -> Verdict {
     let taken = match expect {
         Expect::Goal { goal_id } => s.goal_id == *goal_id,
@@ -65,7 +72,14 @@ pub fn judge(expect: &Expect, baseline: Option<&Status>, s: &Status) -> Verdict 
             return Verdict::Refused(e.clone());
         }
     }
-    Verdict::Pending
+    // Only a goal gives way: a stop is sent again whatever else happened (stopping is always
+    // safe), and a robot repeating a route moves its own goal from waypoint to waypoint.
+    match (expect, baseline) {
+        (Expect::Goal { .. }, Some(b)) if s.mode == Mode::Goal && s.goal_id != b.goal_id => {
+            Verdict::Superseded { goal_id: s.goal_id }
+        }
+        _ => Verdict::Pending,
+    }
 }
 
 /// How often and how long to try.
@@ -96,6 +110,13 @@ pub enum Step {
     WaitUntil(f64),
     /// Stop: taken after this many sends.
     Taken {
+        /// Sends made.
+        attempts: u32,
+    },
+    /// Stop: another sender's newer goal took over before a status showed this command.
+    Superseded {
+        /// The goal the robot shows.
+        goal_id: u32,
         /// Sends made.
         attempts: u32,
     },
@@ -186,6 +207,12 @@ impl Delivery {
                     attempts: self.attempts,
                 }
             }
+            Some(Verdict::Superseded { goal_id }) => {
+                return Step::Superseded {
+                    goal_id: *goal_id,
+                    attempts: self.attempts,
+                }
+            }
             _ => {}
         }
         let due = self.last_send_s + self.policy.confirm_s;
@@ -262,6 +289,38 @@ mod tests {
         let s = status(7, MissionState::Idle, 3, Some(old));
         assert!(matches!(judge(&e, Some(&base), &s), Verdict::Refused(_)));
         // Without a baseline an old refusal cannot be told from a new one.
+        assert_eq!(judge(&e, None, &s), Verdict::Pending);
+    }
+
+    #[test]
+    fn another_senders_newer_goal_ends_a_goals_delivery_but_never_a_stops() {
+        let base = status(7, MissionState::Stopped, 0, None);
+        // The robot drives goal 9, neither the old one nor ours: someone else's, not undone.
+        let e = Expect::Goal { goal_id: 8 };
+        let s = status(9, MissionState::Driving, 0, None);
+        assert_eq!(
+            judge(&e, Some(&base), &s),
+            Verdict::Superseded { goal_id: 9 }
+        );
+        let mut d = Delivery::new(e.clone(), Policy::default(), Some(base.clone()));
+        d.sent(0.0);
+        d.status(s.clone());
+        assert_eq!(
+            d.step(5.0),
+            Step::Superseded {
+                goal_id: 9,
+                attempts: 1
+            }
+        );
+        // A route being repeated moves its own goal id: not another sender.
+        let repeating = Status {
+            mode: Mode::Repeat,
+            ..s.clone()
+        };
+        assert_eq!(judge(&e, Some(&base), &repeating), Verdict::Pending);
+        // A stop is sent again even while someone else's goal drives the robot.
+        assert_eq!(judge(&Expect::Halted, Some(&base), &s), Verdict::Pending);
+        // Without a baseline a goal id says nothing about who sent it.
         assert_eq!(judge(&e, None, &s), Verdict::Pending);
     }
 

@@ -1085,6 +1085,9 @@ fn report_sent<T: serde::Serialize>(
         Sent::Refused { reason, attempts } => {
             bail!("refused by robot {robot} (after {attempts} send(s)): {reason}")
         }
+        Sent::Superseded { goal_id, attempts } => bail!(
+            "robot {robot} took goal {goal_id} from another sender before any status showed this command (sent {attempts} time(s)); not sent again"
+        ),
         Sent::Unconfirmed {
             attempts,
             statuses: 0,
