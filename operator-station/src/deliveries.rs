@@ -97,6 +97,7 @@ impl Pending {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::bus::confirm::Outcome;
     use common::msg::{GoalTarget, MissionState};
     use std::time::Duration;
 
@@ -138,7 +139,7 @@ mod tests {
         ));
         assert_eq!(
             p.step(Some(&status(2600, 42)), at(2.6)),
-            Step::Taken { attempts: 2 }
+            Step::Done(Outcome::Taken { attempts: 2 })
         );
     }
 
@@ -162,10 +163,10 @@ mod tests {
         assert_eq!(sends, 3);
         assert_eq!(
             end,
-            Step::Unconfirmed {
+            Step::Done(Outcome::Unconfirmed {
                 attempts: 3,
                 statuses: 0
-            }
+            })
         );
         assert!((5.9..=6.3).contains(&t), "{t}");
     }

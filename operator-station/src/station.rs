@@ -683,7 +683,7 @@ impl Inner {
     /// Sends again the API's goals and stops that no status has shown yet, and forgets those
     /// shown taken or refused, or sent every time without being shown (logged).
     async fn deliver_pending(self: &Arc<Self>, latest: impl Fn(&str) -> Option<Status>) {
-        use crate::bus::confirm::Step;
+        use crate::bus::confirm::{Outcome, Step};
         let now = std::time::Instant::now();
         let mut again = Vec::new();
         self.deliveries
@@ -698,23 +698,23 @@ impl Inner {
                         again.push((robot.clone(), p.command.clone()));
                         true
                     }
-                    Step::Taken { attempts } => {
+                    Step::Done(Outcome::Taken { attempts }) => {
                         if attempts > 1 {
                             tracing::info!("{kind} to {robot} taken after {attempts} sends");
                         }
                         false
                     }
-                    Step::Superseded { goal_id, .. } => {
+                    Step::Done(Outcome::Superseded { goal_id, .. }) => {
                         tracing::info!(
                             "{kind} to {robot} not sent again: it took goal {goal_id} from another sender"
                         );
                         false
                     }
-                    Step::Refused { reason, .. } => {
+                    Step::Done(Outcome::Refused { reason, .. }) => {
                         tracing::info!("{kind} to {robot} refused by the robot: {reason}");
                         false
                     }
-                    Step::Unconfirmed { attempts, statuses } => {
+                    Step::Done(Outcome::Unconfirmed { attempts, statuses }) => {
                         tracing::warn!(
                             "{kind} to {robot}: sent {attempts} times, none of its {statuses} statuses since showed it"
                         );

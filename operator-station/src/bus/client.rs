@@ -8,7 +8,7 @@ use common::keys::{self, RobotId, Topic};
 use common::msg::{self, Session, Status};
 use zenoh::query::ConsolidationMode;
 
-use super::confirm::{Delivery, Expect, Policy, Step};
+use super::confirm::{Delivery, Expect, Outcome, Policy, Step};
 use crate::station;
 
 /// Opens a session with `zc`.
@@ -61,50 +61,16 @@ pub async fn robot_session_msg(
     session
 }
 
-/// How a command sent with [`send_confirmed`] ended.
-#[derive(Debug)]
-pub enum Sent {
-    /// A status showed it taken after `attempts` sends; `status` is that status.
-    Taken {
-        /// Sends made.
-        attempts: u32,
-        /// The status that showed it.
-        status: Box<Status>,
-    },
-    /// Another sender's newer goal took over before a status showed it.
-    Superseded {
-        /// The goal the robot shows.
-        goal_id: u32,
-        /// Sends made.
-        attempts: u32,
-    },
-    /// The robot refused it.
-    Refused {
-        /// The robot's reason (its `last_error`).
-        reason: String,
-        /// Sends made.
-        attempts: u32,
-    },
-    /// No status showed it after every send.
-    Unconfirmed {
-        /// Sends made.
-        attempts: u32,
-        /// Statuses received after the first send.
-        statuses: u32,
-        /// The last of them.
-        last: Option<Box<Status>>,
-    },
-}
-
-/// The robot's first status within `wait` on `sub` (None: none came or none decoded).
-async fn first_status(
+/// The first message on `sub` within `wait` that decodes as a `T` (None: none came or none
+/// decoded).
+async fn first_decoded<T: serde::de::DeserializeOwned>(
     sub: &zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>,
     wait: Duration,
-) -> Option<Status> {
+) -> Option<T> {
     let deadline = tokio::time::Instant::now() + wait;
     while let Ok(Ok(sample)) = tokio::time::timeout_at(deadline, sub.recv_async()).await {
-        if let Ok(s) = msg::decode::<Status>(&sample.payload().to_bytes()) {
-            return Some(s);
+        if let Ok(m) = msg::decode::<T>(&sample.payload().to_bytes()) {
+            return Some(m);
         }
     }
     None
@@ -122,12 +88,12 @@ pub async fn send_confirmed<T: serde::Serialize>(
     cmd: impl FnOnce(Option<&Status>) -> (T, Expect),
     policy: Policy,
     baseline_wait: Duration,
-) -> anyhow::Result<(T, Sent)> {
+) -> anyhow::Result<(T, Outcome, Option<Status>)> {
     let sub = s
         .declare_subscriber(keys::key(rid, Topic::Status))
         .await
         .map_err(|e| anyhow::anyhow!("subscribe to {rid}'s status: {e}"))?;
-    let baseline = first_status(&sub, baseline_wait).await;
+    let baseline = first_decoded::<Status>(&sub, baseline_wait).await;
     let (cmd, expect) = cmd(baseline.as_ref());
     let mut delivery = Delivery::new(expect, policy, baseline);
     let stamper = common::command::CommandStamper::new(super::sender_id(&s));
@@ -153,26 +119,12 @@ pub async fn send_confirmed<T: serde::Serialize>(
                     Err(_) => {}
                 }
             }
-            Step::Taken { attempts } => {
-                let status = Box::new(delivery.last_status().cloned().unwrap_or_default());
-                break Ok(Sent::Taken { attempts, status });
-            }
-            Step::Refused { reason, attempts } => break Ok(Sent::Refused { reason, attempts }),
-            Step::Superseded { goal_id, attempts } => {
-                break Ok(Sent::Superseded { goal_id, attempts })
-            }
-            Step::Unconfirmed { attempts, statuses } => {
-                break Ok(Sent::Unconfirmed {
-                    attempts,
-                    statuses,
-                    last: delivery.last_status().cloned().map(Box::new),
-                })
-            }
+            Step::Done(outcome) => break Ok(outcome),
         }
     };
     drop(sub);
     let _ = s.close().await;
-    result.map(|sent| (cmd, sent))
+    result.map(|outcome| (cmd, outcome, delivery.last_status().cloned()))
 }
 
 /// The robot's position from one of its poses (it publishes them at 10 Hz), for the goal
@@ -181,15 +133,12 @@ pub async fn robot_context(s: &zenoh::Session, rid: &RobotId) -> RobotContext {
     let Ok(sub) = s.declare_subscriber(keys::key(rid, Topic::Pose)).await else {
         return RobotContext::default();
     };
-    let deadline = tokio::time::Instant::now() + Duration::from_secs(1);
-    while let Ok(Ok(sample)) = tokio::time::timeout_at(deadline, sub.recv_async()).await {
-        if let Ok(p) = msg::decode::<msg::Pose>(&sample.payload().to_bytes()) {
-            return RobotContext {
-                position_m: Some((p.x_m, p.y_m)),
-                lat_lon_deg: p.lat_lon_deg,
-                mapped: None,
-            };
-        }
+    match first_decoded::<msg::Pose>(&sub, Duration::from_secs(1)).await {
+        Some(p) => RobotContext {
+            position_m: Some((p.x_m, p.y_m)),
+            lat_lon_deg: p.lat_lon_deg,
+            mapped: None,
+        },
+        None => RobotContext::default(),
     }
-    RobotContext::default()
 }

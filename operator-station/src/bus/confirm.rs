@@ -101,6 +101,37 @@ impl Default for Policy {
     }
 }
 
+/// How a delivery ended.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Outcome {
+    /// A status showed it taken after this many sends.
+    Taken {
+        /// Sends made.
+        attempts: u32,
+    },
+    /// Another sender's newer goal took over before a status showed this command.
+    Superseded {
+        /// The goal the robot shows.
+        goal_id: u32,
+        /// Sends made.
+        attempts: u32,
+    },
+    /// Refused by the robot.
+    Refused {
+        /// The robot's reason.
+        reason: String,
+        /// Sends made.
+        attempts: u32,
+    },
+    /// Every send made and none shown in a status.
+    Unconfirmed {
+        /// Sends made.
+        attempts: u32,
+        /// Statuses received after the first send.
+        statuses: u32,
+    },
+}
+
 /// What the sender should do now.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Step {
@@ -108,32 +139,8 @@ pub enum Step {
     Send,
     /// Wait for statuses until this time, seconds.
     WaitUntil(f64),
-    /// Stop: taken after this many sends.
-    Taken {
-        /// Sends made.
-        attempts: u32,
-    },
-    /// Stop: another sender's newer goal took over before a status showed this command.
-    Superseded {
-        /// The goal the robot shows.
-        goal_id: u32,
-        /// Sends made.
-        attempts: u32,
-    },
-    /// Stop: refused by the robot.
-    Refused {
-        /// The robot's reason.
-        reason: String,
-        /// Sends made.
-        attempts: u32,
-    },
-    /// Stop: every send made and none shown in a status.
-    Unconfirmed {
-        /// Sends made.
-        attempts: u32,
-        /// Statuses received after the first send.
-        statuses: u32,
-    },
+    /// Stop: the delivery ended.
+    Done(Outcome),
 }
 
 /// The sending of one command until the robot's status shows it.
@@ -195,25 +202,22 @@ impl Delivery {
 
     /// What to do at `now_s`.
     pub fn step(&self, now_s: f64) -> Step {
+        let attempts = self.attempts;
         match &self.outcome {
-            Some(Verdict::Taken) => {
-                return Step::Taken {
-                    attempts: self.attempts,
-                }
-            }
+            Some(Verdict::Taken) => return Step::Done(Outcome::Taken { attempts }),
             Some(Verdict::Refused(reason)) => {
-                return Step::Refused {
+                return Step::Done(Outcome::Refused {
                     reason: reason.clone(),
-                    attempts: self.attempts,
-                }
+                    attempts,
+                })
             }
             Some(Verdict::Superseded { goal_id }) => {
-                return Step::Superseded {
+                return Step::Done(Outcome::Superseded {
                     goal_id: *goal_id,
-                    attempts: self.attempts,
-                }
+                    attempts,
+                })
             }
-            _ => {}
+            Some(Verdict::Pending) | None => {}
         }
         let due = self.last_send_s + self.policy.confirm_s;
         if now_s < due {
@@ -221,10 +225,10 @@ impl Delivery {
         } else if self.attempts < self.policy.attempts {
             Step::Send
         } else {
-            Step::Unconfirmed {
-                attempts: self.attempts,
+            Step::Done(Outcome::Unconfirmed {
+                attempts,
                 statuses: self.statuses,
-            }
+            })
         }
     }
 }
@@ -307,10 +311,10 @@ mod tests {
         d.status(s.clone());
         assert_eq!(
             d.step(5.0),
-            Step::Superseded {
+            Step::Done(Outcome::Superseded {
                 goal_id: 9,
                 attempts: 1
-            }
+            })
         );
         // A route being repeated moves its own goal id: not another sender.
         let repeating = Status {
@@ -365,10 +369,10 @@ mod tests {
         assert_eq!(d.step(2.0), Step::Send);
         d.sent(2.0);
         d.status(status(8, MissionState::Planning, 0, None));
-        assert_eq!(d.step(2.3), Step::Taken { attempts: 2 });
+        assert_eq!(d.step(2.3), Step::Done(Outcome::Taken { attempts: 2 }));
         // Later statuses do not undo the outcome.
         d.status(base);
-        assert_eq!(d.step(9.0), Step::Taken { attempts: 2 });
+        assert_eq!(d.step(9.0), Step::Done(Outcome::Taken { attempts: 2 }));
         assert_eq!(d.last_status().unwrap().goal_id, 8);
     }
 
@@ -390,10 +394,10 @@ mod tests {
         assert_eq!(d.step(1.5), Step::WaitUntil(2.0));
         assert_eq!(
             d.step(2.0),
-            Step::Unconfirmed {
+            Step::Done(Outcome::Unconfirmed {
                 attempts: 2,
                 statuses: 2
-            }
+            })
         );
     }
 
@@ -410,10 +414,10 @@ mod tests {
         ));
         assert_eq!(
             d.step(5.0),
-            Step::Refused {
+            Step::Done(Outcome::Refused {
                 reason: "goal: in keep-out zone".into(),
                 attempts: 1
-            }
+            })
         );
     }
 }

@@ -17,11 +17,11 @@ use anyhow::{bail, Context};
 use clap::{Parser, Subcommand};
 use common::command::{check_goal, CommandLimits};
 use common::keys::{RobotId, Topic};
-use common::msg::{self, GoalCmd, GoalTarget, Session, StopCmd};
+use common::msg::{self, GoalCmd, GoalTarget, Session, Status, StopCmd};
 
 use crate::api::{self, AppState};
-use crate::bus::client::{self, alive_robots, robot_context, send_confirmed, Sent};
-use crate::bus::confirm::{Expect, Policy};
+use crate::bus::client::{self, alive_robots, robot_context, send_confirmed};
+use crate::bus::confirm::{Expect, Outcome, Policy};
 use crate::security::{self, RegisterWatch};
 use crate::station::{self, Station, StationOptions, DEFAULT_LISTEN_ENDPOINT};
 
@@ -1067,40 +1067,36 @@ async fn robot_session(c: &ClientArgs, robot: &str) -> anyhow::Result<zenoh::Ses
 fn report_sent<T: serde::Serialize>(
     robot: &str,
     cmd: &T,
-    sent: Sent,
+    outcome: Outcome,
+    last: Option<Status>,
     shows: &str,
 ) -> anyhow::Result<()> {
-    match sent {
-        Sent::Taken { attempts, status } => {
+    let last = last.unwrap_or_default();
+    match outcome {
+        Outcome::Taken { attempts } => {
             println!(
                 "{}",
                 serde_json::json!({
                     "ok": true, "robot": robot, "sent": cmd, "confirmed": true,
-                    "attempts": attempts, "mode": status.mode, "mission": status.mission,
-                    "reason": status.reason,
+                    "attempts": attempts, "mode": last.mode, "mission": last.mission,
+                    "reason": last.reason,
                 })
             );
             Ok(())
         }
-        Sent::Refused { reason, attempts } => {
+        Outcome::Refused { reason, attempts } => {
             bail!("refused by robot {robot} (after {attempts} send(s)): {reason}")
         }
-        Sent::Superseded { goal_id, attempts } => bail!(
+        Outcome::Superseded { goal_id, attempts } => bail!(
             "robot {robot} took goal {goal_id} from another sender before any status showed this command (sent {attempts} time(s)); not sent again"
         ),
-        Sent::Unconfirmed {
+        Outcome::Unconfirmed {
             attempts,
             statuses: 0,
-            ..
         } => bail!(
             "sent {attempts} time(s), but no status came from robot {robot} (is its status reaching this session?); it may or may not have taken it"
         ),
-        Sent::Unconfirmed {
-            attempts,
-            statuses,
-            last,
-        } => {
-            let last = last.unwrap_or_default();
+        Outcome::Unconfirmed { attempts, statuses } => {
             bail!(
                 "sent {attempts} time(s); none of the robot's {statuses} status(es) since showed {shows} (last: mode {:?}, mission {:?}, goal id {}, \"{}\")",
                 last.mode,
@@ -1145,7 +1141,7 @@ async fn goal(a: GoalArgs) -> anyhow::Result<()> {
         bail!("goal refused: {} [{}]", r.message, r.code.as_str());
     }
     let wait = Duration::from_secs_f64(a.client.wait_s.max(0.2));
-    let (cmd, sent) = send_confirmed(
+    let (cmd, outcome, last) = send_confirmed(
         s,
         &rid,
         Topic::CmdGoal,
@@ -1164,7 +1160,7 @@ async fn goal(a: GoalArgs) -> anyhow::Result<()> {
         wait,
     )
     .await?;
-    report_sent(&a.robot, &cmd, sent, "this goal's id")
+    report_sent(&a.robot, &cmd, outcome, last, "this goal's id")
 }
 
 async fn stop(a: StopArgs) -> anyhow::Result<()> {
@@ -1174,7 +1170,7 @@ async fn stop(a: StopArgs) -> anyhow::Result<()> {
     let rid = RobotId::new(&a.robot)?;
     let s = robot_session(&a.client, &a.robot).await?;
     let wait = Duration::from_secs_f64(a.client.wait_s.max(0.2));
-    let (cmd, sent) = send_confirmed(
+    let (cmd, outcome, last) = send_confirmed(
         s,
         &rid,
         Topic::CmdStop,
@@ -1183,7 +1179,7 @@ async fn stop(a: StopArgs) -> anyhow::Result<()> {
         wait,
     )
     .await?;
-    report_sent(&a.robot, &cmd, sent, "it halted")
+    report_sent(&a.robot, &cmd, outcome, last, "it halted")
 }
 
 fn export(a: ExportArgs) -> anyhow::Result<()> {
