@@ -23,6 +23,14 @@ pub struct KeyframeError {
     pub live_yaw_deg: f64,
     /// The graph's final yaw error, degrees.
     pub graph_yaw_deg: f64,
+    /// Live height error (estimate less truth), metres.
+    pub live_z_m: f64,
+    /// The graph's final height error, metres.
+    pub graph_z_m: f64,
+    /// Live tilt error (angle between the estimated and the true up axis), degrees.
+    pub live_tilt_deg: f64,
+    /// The graph's final tilt error, degrees.
+    pub graph_tilt_deg: f64,
 }
 
 /// Keyframe errors over a run with the graph on.
@@ -42,6 +50,14 @@ pub struct GraphKeyframes {
     pub live_yaw_mean_deg: f64,
     /// Mean absolute yaw error of the graph's final poses, degrees.
     pub graph_yaw_mean_deg: f64,
+    /// Mean absolute live height error, metres.
+    pub live_z_mean_m: f64,
+    /// Mean absolute height error of the graph's final poses, metres.
+    pub graph_z_mean_m: f64,
+    /// Mean live tilt error, degrees.
+    pub live_tilt_mean_deg: f64,
+    /// Mean tilt error of the graph's final poses, degrees.
+    pub graph_tilt_mean_deg: f64,
     /// Every keyframe.
     pub per_keyframe: Vec<KeyframeError>,
 }
@@ -86,6 +102,9 @@ impl KeyframeLog {
                 let (_, _, b) = truth.rotation.euler_angles();
                 common::geom::wrap_angle(a - b).to_degrees()
             };
+            let z = |p: &Isometry3<f64>| p.translation.z - truth.translation.z;
+            let up = |p: &Isometry3<f64>| p.rotation * nalgebra::Vector3::z();
+            let tilt = |p: &Isometry3<f64>| up(p).angle(&up(&truth)).to_degrees();
             out.per_keyframe.push(KeyframeError {
                 t_s,
                 x_m: truth.translation.x,
@@ -94,6 +113,10 @@ impl KeyframeLog {
                 graph_xy_m: xy(&pose).norm(),
                 live_yaw_deg: yaw(&live),
                 graph_yaw_deg: yaw(&pose),
+                live_z_m: z(&live),
+                graph_z_m: z(&pose),
+                live_tilt_deg: tilt(&live),
+                graph_tilt_deg: tilt(&pose),
             });
         }
         let k = &out.per_keyframe;
@@ -105,6 +128,10 @@ impl KeyframeLog {
         out.graph_xy_max_m = k.iter().map(|e| e.graph_xy_m).fold(0.0, f64::max);
         out.live_yaw_mean_deg = k.iter().map(|e| e.live_yaw_deg.abs()).sum::<f64>() / n;
         out.graph_yaw_mean_deg = k.iter().map(|e| e.graph_yaw_deg.abs()).sum::<f64>() / n;
+        out.live_z_mean_m = k.iter().map(|e| e.live_z_m.abs()).sum::<f64>() / n;
+        out.graph_z_mean_m = k.iter().map(|e| e.graph_z_m.abs()).sum::<f64>() / n;
+        out.live_tilt_mean_deg = k.iter().map(|e| e.live_tilt_deg).sum::<f64>() / n;
+        out.graph_tilt_mean_deg = k.iter().map(|e| e.graph_tilt_deg).sum::<f64>() / n;
         out
     }
 }
