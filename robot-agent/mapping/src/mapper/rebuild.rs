@@ -6,6 +6,7 @@
 use super::{Mapper, TileSlot};
 use crate::classify::Class;
 use common::grid::{Cell, CellState, TileIndex};
+use std::collections::HashMap;
 
 impl Mapper {
     /// Replaces this map by `rebuilt` (same configuration, fed the kept sweeps at their
@@ -38,8 +39,14 @@ impl Mapper {
 
     /// [`Mapper::replace_tiles_with`] where, inside a stale tile, only the cells `rebuilt_cell`
     /// says (global cell indices) are the rebuilt map's: the others keep this map's evidence,
-    /// verdicts and stamps, their heights moved by `dz_of` metres (the vertical part of the
-    /// correction there). The tile is still published again. A kept cell's verdict and cost were
+    /// verdicts and stamps, their heights moved onto the rebuilt map's ground: by the median
+    /// height difference of the ground both maps hold as traversable in each stale tile,
+    /// interpolated between tile centres ([`ground_offset`]), or by `dz_of` metres (the vertical
+    /// part of the correction there, from the poses) where no tile nearby has such ground. The
+    /// poses alone do not say where this map's heights are: they also followed frame shifts
+    /// and revisits since the sweeps were mapped (on `loop` the return of RTK after the outage
+    /// lifted the outage's kept cells 0.2 m above their rebuilt neighbours). The tile is still
+    /// published again. A kept cell's verdict and cost were
     /// made with this map's neighbours: the caller keeps a cell only where the correction moved
     /// its evidence and its neighbours' so little that the rebuilt neighbours agree with them.
     pub fn replace_cells_with(
@@ -52,8 +59,22 @@ impl Mapper {
     ) -> Replaced {
         let min_points = self.rules.min_points();
         let lattice = self.lattice;
+        let offsets: HashMap<TileIndex, f32> = rebuilt
+            .slots
+            .iter()
+            .filter(|s| stale(s.index))
+            .filter_map(|s| {
+                let o = self.slots.get(*self.slot_of.get(&s.index)?)?;
+                Some((s.index, ground_offset(s, o)?))
+            })
+            .collect();
+        let dz_at = |cx: i64, cy: i64| {
+            interpolated_offset(&offsets, &lattice, cx, cy)
+                .map(|o| if o.abs() < OFFSET_NOISE_M { 0.0 } else { o })
+                .unwrap_or_else(|| dz_of(cx, cy))
+        };
         let keep = |to: &mut TileSlot, from: &TileSlot| {
-            keep_cells(to, from, &lattice, &rebuilt_cell, &dz_of, min_points)
+            keep_cells(to, from, &lattice, &rebuilt_cell, dz_at, min_points)
         };
         let mut rebuilt_cells = 0;
         let mut doubted: Vec<(i64, i64, f32)> = Vec::new();
@@ -203,6 +224,72 @@ fn obstacles_only_rebuilt(
         .collect()
 }
 
+/// Cells of a tile both maps hold as traversable ground that the offset between them is
+/// measured from; fewer, and the tile gives none.
+const OFFSET_MIN_CELLS: usize = 30;
+
+/// Ground offsets smaller than this are the two maps' noise, not a move, metres: the kept
+/// cells stay as they are (evidence and outputs).
+const OFFSET_NOISE_M: f64 = 0.005;
+
+/// How far the rebuilt map's ground (`to`) stands above this map's (`from`) in one tile: the
+/// median over the cells both hold as traversable ground, or None with fewer than
+/// [`OFFSET_MIN_CELLS`].
+fn ground_offset(to: &TileSlot, from: &TileSlot) -> Option<f32> {
+    let mut d: Vec<f32> = to
+        .ground
+        .iter()
+        .zip(&from.ground)
+        .zip(to.data.iter().zip(&from.data))
+        .filter(|((a, b), (p, q))| {
+            a.is_finite()
+                && b.is_finite()
+                && p.class == Class::Traversable
+                && q.class == Class::Traversable
+        })
+        .map(|((a, b), _)| a - b)
+        .collect();
+    if d.len() < OFFSET_MIN_CELLS {
+        return None;
+    }
+    let mid = d.len() / 2;
+    Some(*d.select_nth_unstable_by(mid, f32::total_cmp).1)
+}
+
+/// The tiles' ground offsets interpolated bilinearly between tile centres at cell (cx, cy)
+/// (over the neighbouring tiles that have one), so kept cells meet their neighbours across
+/// tile borders without a step; None where no neighbouring tile has one.
+fn interpolated_offset(
+    offsets: &HashMap<TileIndex, f32>,
+    lattice: &common::grid::Lattice,
+    cx: i64,
+    cy: i64,
+) -> Option<f64> {
+    if offsets.is_empty() {
+        return None;
+    }
+    let n = f64::from(lattice.tile_cells);
+    let fx = (cx as f64 + 0.5) / n - 0.5;
+    let fy = (cy as f64 + 0.5) / n - 0.5;
+    let (x0, y0) = (fx.floor(), fy.floor());
+    let (ax, ay) = (fx - x0, fy - y0);
+    let (mut sum, mut weight) = (0.0, 0.0);
+    for (dx, wx) in [(0, 1.0 - ax), (1, ax)] {
+        for (dy, wy) in [(0, 1.0 - ay), (1, ay)] {
+            let t = TileIndex {
+                tx: (x0 as i64 + dx) as i32,
+                ty: (y0 as i64 + dy) as i32,
+            };
+            if let Some(&o) = offsets.get(&t) {
+                let w = wx * wy;
+                sum += w * f64::from(o);
+                weight += w;
+            }
+        }
+    }
+    (weight > 1e-6).then(|| sum / weight)
+}
+
 /// What [`Mapper::replace_cells_with`] did.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Replaced {
@@ -273,6 +360,11 @@ mod tests {
 
     /// Maps a drive along y = 0 whose sweeps are placed `offset_y` off (a drifted pose).
     fn mapped(offset_y: f64) -> Mapper {
+        mapped_at(offset_y, 0.0)
+    }
+
+    /// [`mapped`], the sweeps also placed `offset_z` metres high.
+    fn mapped_at(offset_y: f64, offset_z: f64) -> Mapper {
         let spec = LidarSpec {
             az_step_deg: 0.4,
             max_range_m: 20.0,
@@ -285,14 +377,16 @@ mod tests {
             let mut pts = cast_scan(&world, [x, 0.0, 0.7], &spec, &mut rng);
             for p in &mut pts {
                 p[1] += offset_y as f32;
+                p[2] += offset_z as f32;
             }
             let robot = RobotPose {
                 x_m: x,
                 y_m: offset_y,
-                z_m: 0.0,
+                z_m: offset_z,
                 yaw_rad: 0.0,
             };
-            m.update_sweep(pts, [x, offset_y, 0.7], &robot, 10.0 + f64::from(i) * 0.1)
+            let sensor = [x, offset_y, 0.7 + offset_z];
+            m.update_sweep(pts, sensor, &robot, 10.0 + f64::from(i) * 0.1)
                 .unwrap();
         }
         m
@@ -353,7 +447,7 @@ mod tests {
         // Stale: the cells south of y = 0.5 m. North of it the drifted box stays; south of it
         // the rebuilt one comes in.
         let (_, split) = l.cell_of(0.0, 0.5);
-        // The kept cells move up 5 cm.
+        // The poses say the kept cells move up 5 cm; the two maps' ground says they stay.
         let r = drifted.replace_cells_with(
             mapped(0.0),
             17.0,
@@ -391,9 +485,56 @@ mod tests {
             (was.state, was.stamp_s, was.hits),
             "a kept cell keeps its verdict and stamp"
         );
-        assert_eq!(now.height_cm, was.height_cm + 5, "and moves up 5 cm");
+        assert_eq!(
+            now.height_cm, was.height_cm,
+            "and stays on the rebuilt map's ground, which stands where it stood"
+        );
         let (sx, sy) = l.cell_of(3.0, 0.1);
         assert_eq!(drifted.cell(sx, sy).stamp_s, 17, "a rebuilt cell");
+    }
+
+    #[test]
+    fn kept_cells_move_onto_the_rebuilt_ground_whatever_the_poses_say() {
+        // The rebuilt map stands 10 cm higher than the live one (the live map's heights
+        // followed frame shifts and revisits the poses do not know of); the poses say nothing
+        // moved. The kept cells must meet their rebuilt neighbours: left where they were, the
+        // border between the two is a 10 cm step the rules read as obstacles.
+        let mut live = mapped(0.0);
+        let l = live.lattice();
+        let (_, split) = l.cell_of(0.0, 0.5);
+        let (kx, ky) = l.cell_of(3.0, 4.0);
+        let before = live.height_m(kx, ky).expect("observed");
+        let all = |_| true;
+        let _ = live.replace_cells_with(
+            mapped_at(0.0, 0.1),
+            17.0,
+            all,
+            |_, cy| cy < split,
+            |_, _| 0.0,
+        );
+        let after = live.height_m(kx, ky).expect("observed");
+        assert!(
+            (after - before - 0.1).abs() < 0.01,
+            "a kept cell moved {:.3} m",
+            after - before
+        );
+        // Along the border between kept (north) and rebuilt (south) cells: no step.
+        assert_eq!(obstacles_in(&live, (-3.0, 4.5), (-1.0, 2.0)), 0);
+        assert!(obstacles_in(&live, (5.3, 6.7), (-0.7, 0.7)) > 0, "the box");
+        // With no ground both maps hold as traversable there is no offset to measure, and the
+        // kept cells move as the poses say (here not at all).
+        let mut live = mapped(0.0);
+        let mut rebuilt = mapped_at(0.0, 0.1);
+        for s in &mut rebuilt.slots {
+            s.data.iter_mut().for_each(|d| d.class = Class::Unknown);
+        }
+        let _ = live.replace_cells_with(rebuilt, 17.0, all, |_, cy| cy < split, |_, _| 0.0);
+        let after = live.height_m(kx, ky).expect("observed");
+        assert!(
+            (after - before).abs() < 0.01,
+            "moved {:.3} m",
+            after - before
+        );
     }
 
     #[test]
