@@ -59,6 +59,7 @@ impl Mapper {
     ) -> Replaced {
         let min_points = self.rules.min_points();
         let lattice = self.lattice;
+        let h_r_m = self.cfg.h_r_m as f32;
         let offsets: HashMap<TileIndex, f32> = rebuilt
             .slots
             .iter()
@@ -74,7 +75,7 @@ impl Mapper {
                 .unwrap_or_else(|| dz_of(cx, cy))
         };
         let keep = |to: &mut TileSlot, from: &TileSlot| {
-            keep_cells(to, from, &lattice, &rebuilt_cell, dz_at, min_points)
+            keep_cells(to, from, &lattice, &rebuilt_cell, dz_at, min_points, h_r_m)
         };
         let mut rebuilt_cells = 0;
         let mut doubted: Vec<(i64, i64, f32)> = Vec::new();
@@ -312,13 +313,27 @@ fn keep_cells(
     rebuilt_cell: impl Fn(i64, i64) -> bool,
     dz_of: impl Fn(i64, i64) -> f64,
     min_points: u32,
+    h_r_m: f32,
 ) -> usize {
     let n = lattice.tile_cells as usize;
     let (cx0, cy0) = lattice.tile_first_cell(to.index);
+    // The rebuild sees one sweep in `map_rebuild_spacing_m`'s worth: under a canopy it may
+    // keep only the canopy's returns where the live map saw the ground below with headroom.
+    let lost_ground: Vec<bool> = (0..n * n)
+        .map(|k| {
+            let (live, re) = (&from.data[k], &to.data[k]);
+            live.headroom
+                && live.class == Class::Traversable
+                && re.class == Class::Obstacle
+                && from.ground[k].is_finite()
+                && to.ground[k].is_finite()
+                && to.ground[k] > from.ground[k] + h_r_m
+        })
+        .collect();
     let mut rebuilt = 0;
-    for k in 0..n * n {
+    for (k, &lost) in lost_ground.iter().enumerate() {
         let (cx, cy) = (cx0 + (k % n) as i64, cy0 + (k / n) as i64);
-        if rebuilt_cell(cx, cy) {
+        if rebuilt_cell(cx, cy) && !lost {
             rebuilt += 1;
             continue;
         }
@@ -534,6 +549,46 @@ mod tests {
             (after - before).abs() < 0.01,
             "moved {:.3} m",
             after - before
+        );
+    }
+
+    #[test]
+    fn a_rebuilt_cell_left_with_a_canopy_over_the_live_ground_keeps_the_live_cell() {
+        // The thinned rebuild kept only a canopy's returns (2.8 m up) in a cell where the live
+        // map saw the ground below with headroom: the live cell stays, not an obstacle.
+        let mut live = mapped(0.0);
+        let mut rebuilt = mapped(0.0);
+        let (si, k) = live
+            .slots
+            .iter()
+            .enumerate()
+            .find_map(|(i, s)| {
+                (0..s.data.len())
+                    .find(|&k| s.data[k].class == Class::Traversable && s.ground[k].is_finite())
+                    .map(|k| (i, k))
+            })
+            .expect("ground");
+        live.slots[si].data[k].headroom = true;
+        let index = live.slots[si].index;
+        let ground = live.slots[si].ground[k];
+        let rs = rebuilt
+            .slots
+            .iter_mut()
+            .find(|s| s.index == index)
+            .expect("the same tile");
+        rs.ground[k] = ground + 2.8;
+        rs.data[k].class = Class::Obstacle;
+        let l = live.lattice();
+        let n = l.tile_cells as usize;
+        let (cx0, cy0) = l.tile_first_cell(index);
+        let (cx, cy) = (cx0 + (k % n) as i64, cy0 + (k / n) as i64);
+        let _ = live.replace_cells_with(rebuilt, 17.0, |_| true, |_, _| true, |_, _| 0.0);
+        assert_eq!(live.class(cx, cy), Class::Traversable);
+        let merged = live.slots.iter().find(|s| s.index == index).expect("tile");
+        assert!(
+            (merged.ground[k] - ground).abs() < 0.05,
+            "the live ground {ground}, not the canopy: {}",
+            merged.ground[k]
         );
     }
 
