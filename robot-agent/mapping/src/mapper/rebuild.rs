@@ -237,7 +237,7 @@ const OFFSET_NOISE_M: f64 = 0.005;
 /// median over the cells both hold as traversable ground, or None with fewer than
 /// [`OFFSET_MIN_CELLS`].
 fn ground_offset(to: &TileSlot, from: &TileSlot) -> Option<f32> {
-    let mut d: Vec<f32> = to
+    let mut d: Vec<f64> = to
         .ground
         .iter()
         .zip(&from.ground)
@@ -248,13 +248,9 @@ fn ground_offset(to: &TileSlot, from: &TileSlot) -> Option<f32> {
                 && p.class == Class::Traversable
                 && q.class == Class::Traversable
         })
-        .map(|((a, b), _)| a - b)
+        .map(|((a, b), _)| f64::from(a - b))
         .collect();
-    if d.len() < OFFSET_MIN_CELLS {
-        return None;
-    }
-    let mid = d.len() / 2;
-    Some(*d.select_nth_unstable_by(mid, f32::total_cmp).1)
+    (d.len() >= OFFSET_MIN_CELLS).then(|| super::revisit::median(&mut d) as f32)
 }
 
 /// The tiles' ground offsets interpolated bilinearly between tile centres at cell (cx, cy)
@@ -317,23 +313,19 @@ fn keep_cells(
 ) -> usize {
     let n = lattice.tile_cells as usize;
     let (cx0, cy0) = lattice.tile_first_cell(to.index);
-    // The rebuild sees one sweep in `map_rebuild_spacing_m`'s worth: under a canopy it may
-    // keep only the canopy's returns where the live map saw the ground below with headroom.
-    let lost_ground: Vec<bool> = (0..n * n)
-        .map(|k| {
-            let (live, re) = (&from.data[k], &to.data[k]);
-            live.headroom
-                && live.class == Class::Traversable
-                && re.class == Class::Obstacle
-                && from.ground[k].is_finite()
-                && to.ground[k].is_finite()
-                && to.ground[k] > from.ground[k] + h_r_m
-        })
-        .collect();
     let mut rebuilt = 0;
-    for (k, &lost) in lost_ground.iter().enumerate() {
+    for k in 0..n * n {
         let (cx, cy) = (cx0 + (k % n) as i64, cy0 + (k / n) as i64);
-        if rebuilt_cell(cx, cy) && !lost {
+        // The rebuild sees one sweep in `map_rebuild_spacing_m`'s worth: under a canopy it may
+        // keep only the canopy's returns where the live map saw the ground below with headroom.
+        let (live, re) = (&from.data[k], &to.data[k]);
+        let lost_ground = live.headroom
+            && live.class == Class::Traversable
+            && re.class == Class::Obstacle
+            && from.ground[k].is_finite()
+            && to.ground[k].is_finite()
+            && to.ground[k] > from.ground[k] + h_r_m;
+        if rebuilt_cell(cx, cy) && !lost_ground {
             rebuilt += 1;
             continue;
         }

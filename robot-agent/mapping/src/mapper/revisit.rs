@@ -292,7 +292,7 @@ impl Mapper {
 }
 
 /// The median of `v` (reordered); `v` must not be empty.
-fn median(v: &mut [f64]) -> f64 {
+pub(super) fn median(v: &mut [f64]) -> f64 {
     let m = v.len() / 2;
     *v.select_nth_unstable_by(m, f64::total_cmp).1
 }
