@@ -43,6 +43,12 @@ use sensing::{Point, Scan};
 pub use view::PlannerView;
 use window::Window;
 
+/// How much higher than the live map's ground a rebuild's ceilings take it
+/// ([`Mapper::update_sweep_under`]), metres: the live heights follow the frame's shifts and may
+/// stand up to ~0.2 m off the corrected poses' frame (docs/algorithms.md §3.7), and a ceiling set
+/// that much too low would drop the top of what stands near the robot's height.
+pub const CEILING_HINT_MARGIN_M: f32 = 0.3;
+
 /// Why an update was refused.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]
@@ -295,7 +301,7 @@ impl Mapper {
             })
             .collect();
         let o = pose_map_sensor.translation.vector;
-        self.update(pts, Some([o.x, o.y, o.z]), robot, t_s, Evidence::Scan)
+        self.update(pts, Some([o.x, o.y, o.z]), robot, t_s, Evidence::Scan, None)
     }
 
     /// One sweep already in the map frame (e.g. de-skewed), seen from `sensor_map` (the sensor's
@@ -307,7 +313,31 @@ impl Mapper {
         robot: &RobotPose,
         t_s: f64,
     ) -> Result<UpdateReport, MapError> {
-        self.update(pts_map, Some(sensor_map), robot, t_s, Evidence::Scan)
+        self.update(pts_map, Some(sensor_map), robot, t_s, Evidence::Scan, None)
+    }
+
+    /// [`Mapper::update_sweep`] for a map rebuilt from thinned sweeps (a pose graph correction,
+    /// docs/algorithms.md §3.7): the ceilings also take `live`'s ground (the map made from every
+    /// sweep) as seen ground, raised by [`CEILING_HINT_MARGIN_M`]. One sweep in six may cross a
+    /// tree's canopy with no ring on the ground below; without the live ground its returns set
+    /// their own ceiling and come in as the cells' surface (an obstacle ringed by steps), where
+    /// the live map, made from every sweep, had dropped them above the ground it knew.
+    pub fn update_sweep_under(
+        &mut self,
+        pts_map: Vec<[f32; 3]>,
+        sensor_map: [f64; 3],
+        robot: &RobotPose,
+        t_s: f64,
+        live: &Mapper,
+    ) -> Result<UpdateReport, MapError> {
+        self.update(
+            pts_map,
+            Some(sensor_map),
+            robot,
+            t_s,
+            Evidence::Scan,
+            Some(live),
+        )
     }
 
     /// The map cloud around the robot (map frame), e.g. from SLAM.
@@ -330,7 +360,7 @@ impl Mapper {
         t_s: f64,
         kind: Evidence,
     ) -> Result<UpdateReport, MapError> {
-        self.update(pts, None, robot, t_s, kind)
+        self.update(pts, None, robot, t_s, kind, None)
     }
 
     /// The core step: one update's stages in order.
@@ -341,6 +371,7 @@ impl Mapper {
         robot: &RobotPose,
         t_s: f64,
         kind: Evidence,
+        ground_hint: Option<&Mapper>,
     ) -> Result<UpdateReport, MapError> {
         let t_s = self.begin_update(sensor, robot, t_s)?;
         let mut rep = UpdateReport {
@@ -363,7 +394,7 @@ impl Mapper {
         }
         // 1-3. Filters, then binning under the per-cell ceilings.
         self.filter_points(&mut pts, robot, &mut rep);
-        self.bin_points(&pts, kind, &mut rep);
+        self.bin_points(&pts, kind, ground_hint, &mut rep);
         let mut dirty = Vec::new();
         // An earlier visit's ground onto the current frame, before anything compares with it.
         self.align_revisit(robot, t_s, kind, &mut dirty, &mut rep);

@@ -72,10 +72,14 @@ fn map_kept(
     mapper: &mut mapping::Mapper,
     r: &rebuild::Remap,
     base_from_lidar: &nalgebra::Isometry3<f64>,
+    live: Option<&mapping::Mapper>,
 ) -> Result<mapping::UpdateReport, mapping::MapError> {
     let (pts, origin) = rebuild::to_map(r, base_from_lidar);
     let robot = robot_pose(&PoseMap::from_iso(r.map_from_base));
-    mapper.update_sweep(pts, origin, &robot, r.t_s)
+    match live {
+        Some(live) => mapper.update_sweep_under(pts, origin, &robot, r.t_s, live),
+        None => mapper.update_sweep(pts, origin, &robot, r.t_s),
+    }
 }
 
 /// See the module docs.
@@ -261,7 +265,9 @@ impl TerrainMap {
         for r in kept.after(sh.fed_until, n) {
             sh.follow_frames_before(r.t_s, radius_m);
             sh.moves.add(&r, base_from_lidar);
-            match map_kept(&mut sh.mapper, &r, base_from_lidar) {
+            // The live map's ground keeps a canopy the thinned sweeps saw alone out of the
+            // rebuilt cells (`Mapper::update_sweep_under`).
+            match map_kept(&mut sh.mapper, &r, base_from_lidar, Some(&self.mapper)) {
                 Ok(u) => self.cleared_cells += u.cleared_cells,
                 Err(e) => {
                     // The shadow cannot go past a sweep it refuses: this rebuild is given up,
@@ -356,7 +362,7 @@ impl TerrainMap {
                 return Ok(Some(m));
             }
             for r in batch {
-                map_kept(&mut m, &r, base_from_lidar)?;
+                map_kept(&mut m, &r, base_from_lidar, Some(&self.mapper))?;
                 after = Some(r.t_s);
             }
         }

@@ -5,7 +5,7 @@
 
 use super::cell_data::Moments;
 use super::fast_hash::FastMap;
-use super::{norm2, Evidence, Mapper, RobotPose, UpdateReport};
+use super::{norm2, Evidence, Mapper, RobotPose, UpdateReport, CEILING_HINT_MARGIN_M};
 use crate::filters;
 
 /// Points this far above their cell's lowest return in the sweep go through the isolated-point
@@ -60,7 +60,13 @@ impl Mapper {
     /// Step 3: bins the points into the scratch window under each cell's ceiling, as ground
     /// (`low`) or, in scan mode, as possible stray points standing more than `stray_height_m`
     /// above the cell's ground (`high`).
-    pub(super) fn bin_points(&mut self, pts: &[[f32; 3]], kind: Evidence, rep: &mut UpdateReport) {
+    pub(super) fn bin_points(
+        &mut self,
+        pts: &[[f32; 3]],
+        kind: Evidence,
+        ground_hint: Option<&Mapper>,
+        rep: &mut UpdateReport,
+    ) {
         let mut cells_of = Vec::with_capacity(pts.len());
         for p in pts {
             let (cx, cy) = self.cell_of(f64::from(p[0]), f64::from(p[1]));
@@ -74,7 +80,7 @@ impl Mapper {
             }
         }
         self.win.touched.sort_unstable();
-        self.compute_ceilings();
+        self.compute_ceilings(ground_hint);
         let stray_on = kind == Evidence::Scan && self.cfg.stray_height_m > 0.0;
         // The ground reference for stray points: the lowest point in the cell this scan, or the
         // ground the cell already showed, whichever is lower.
@@ -114,7 +120,9 @@ impl Mapper {
     /// `ceiling_radius_cells`, from this sweep or (where this sweep's rings left a gap) from what
     /// the cells showed before, plus `h_r` and the climb allowance to that cell. Without the stored
     /// ground a tree canopy between two rings would set its own ceiling and come in as an obstacle.
-    fn compute_ceilings(&mut self) {
+    /// `ground_hint`'s ground counts as stored ground too, [`CEILING_HINT_MARGIN_M`] higher
+    /// ([`Mapper::update_sweep_under`]).
+    fn compute_ceilings(&mut self, ground_hint: Option<&Mapper>) {
         let r = i64::from(self.cfg.ceiling_radius_cells);
         let tan_phi = self.cfg.phi_max_deg.to_radians().tan() as f32;
         let l = self.cfg.grid_size_m as f32;
@@ -149,6 +157,9 @@ impl Mapper {
                     if sg.is_nan() {
                         let (cx, cy) = self.win.global(j);
                         sg = self.ground(cx, cy);
+                        if let Some(h) = ground_hint {
+                            sg = sg.min(h.ground(cx, cy) + CEILING_HINT_MARGIN_M);
+                        }
                         self.win.stored_ground[j] = sg;
                         looked_up.push(j);
                     }

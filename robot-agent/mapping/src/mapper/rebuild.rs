@@ -585,6 +585,51 @@ mod tests {
     }
 
     #[test]
+    fn a_rebuild_under_the_live_map_drops_a_canopy_seen_without_its_ground() {
+        // One kept sweep crossed a canopy 2.8 m up over (4, 3) with no ring on the ground
+        // below, which the live map, made from every sweep, saw as flat ground.
+        let live = mapped(0.0);
+        let canopy: Vec<[f32; 3]> = (0..30)
+            .flat_map(|i| (0..30).map(move |j| (i, j)))
+            .map(|(i, j)| [3.0 + 0.07 * i as f32, 2.0 + 0.07 * j as f32, 2.8])
+            .collect();
+        let robot = RobotPose {
+            x_m: 0.0,
+            y_m: 0.0,
+            z_m: 0.0,
+            yaw_rad: 0.0,
+        };
+        let l = live.lattice();
+        let (cx, cy) = l.cell_of(4.0, 3.0);
+        assert!(live.height_m(cx, cy).is_some_and(|h| h.abs() < 0.1));
+        let mut alone = Mapper::new(Config::default()).unwrap();
+        alone
+            .update_sweep(canopy.clone(), [0.0, 0.0, 0.7], &robot, 10.0)
+            .unwrap();
+        assert!(
+            alone.height_m(cx, cy).is_some_and(|h| h > 2.5),
+            "without the live ground the canopy is the cell's surface: {:?}",
+            alone.height_m(cx, cy)
+        );
+        let mut under = Mapper::new(Config::default()).unwrap();
+        let rep = under
+            .update_sweep_under(canopy.clone(), [0.0, 0.0, 0.7], &robot, 10.0, &live)
+            .unwrap();
+        assert_eq!(under.height_m(cx, cy), None);
+        let patch = |m: &Mapper| {
+            let (c0, r0) = l.cell_of(3.0, 2.0);
+            let (c1, r1) = l.cell_of(5.0, 4.0);
+            (r0..=r1)
+                .flat_map(|r| (c0..=c1).map(move |c| (c, r)))
+                .filter(|&(c, r)| m.height_m(c, r).is_some())
+                .count()
+        };
+        assert!(patch(&alone) > 50, "{}", patch(&alone));
+        assert_eq!(patch(&under), 0, "no canopy cell under the live ground");
+        assert!(rep.dropped_ceiling > canopy.len() / 2);
+    }
+
+    #[test]
     fn a_rebuilt_obstacle_the_live_map_held_traversable_stays_only_if_the_rules_still_find_it() {
         use common::grid::CellState;
         // The rebuilt map's own verdicts, planted: an obstacle on open ground at (3, 2) that its
