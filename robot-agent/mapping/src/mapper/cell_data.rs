@@ -134,6 +134,9 @@ pub(super) struct CellData {
     /// Free space wiped this cell from beyond the processing distance since it was last
     /// classified: it may be judged again from out there (towards traversable or unknown).
     pub(super) far_wiped: bool,
+    /// The class is an obstacle the stair rule raised from beyond the processing distance (far
+    /// rule 2): far evidence may take it back (far rule 5).
+    pub(super) far_raised: bool,
     /// The robot's footprint covered this cell (proprioception), at this ground height.
     pub(super) driven: bool,
     pub(super) driven_z: f32,
@@ -164,6 +167,7 @@ impl Default for CellData {
             stamp_s: 0,
             headroom: false,
             far_wiped: false,
+            far_raised: false,
             driven: false,
             driven_z: 0.0,
             class: Class::default(),

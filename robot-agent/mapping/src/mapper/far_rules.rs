@@ -1,6 +1,6 @@
 //! The far rules (beyond the source): what a view from beyond the processing distance may still
 //! change about a cell. Out there a 10 cm face is a couple of sparse returns, so far evidence
-//! never clears an obstacle judged on close evidence and raises one only in three narrow cases,
+//! never clears an obstacle judged on close evidence and raises one only in two narrow cases,
 //! each a function here, tried in this order on the cell as it was before any of them:
 //!
 //! 1. [`Mapper::far_step`]: a cell judged traversable from close by whose lower neighbour,
@@ -11,7 +11,9 @@
 //!    again, towards traversable or unknown only (a walker's trail behind the robot);
 //! 4. [`Mapper::rejudge_seen_nearer`]: an obstacle judged from close by on evidence seen only
 //!    from afar is judged again when nearer evidence comes in, towards traversable, overhung or
-//!    unknown only.
+//!    unknown only;
+//! 5. [`Mapper::retract_stair`]: an obstacle rule 2 raised goes back to unknown once the rules
+//!    find it traversable on level, fully observed ground.
 
 use super::cell_data::CellData;
 use super::{Mapper, RobotPose};
@@ -32,6 +34,7 @@ impl Mapper {
         self.stair_continues(cx, cy, d, robot, changed);
         self.rejudge_wiped(cx, cy, d, robot, changed);
         self.rejudge_seen_nearer(cx, cy, d, robot, changed);
+        self.retract_stair(cx, cy, d, changed);
     }
 
     /// A cell judged traversable from close by may still turn into an obstacle from out here:
@@ -54,7 +57,9 @@ impl Mapper {
             && self.distance_m(cx, cy, robot) <= self.cfg.far_step_distance_m
             && self.shadowed_step(cx, cy, d)
         {
-            self.data_mut(cx, cy).class = Class::Obstacle;
+            let dm = self.data_mut(cx, cy);
+            dm.class = Class::Obstacle;
+            dm.far_raised = false;
             changed.push((cx, cy));
         }
     }
@@ -92,10 +97,50 @@ impl Mapper {
                     Verdict::Step | Verdict::NeighbourStep | Verdict::TopStep
                 )
             {
-                self.data_mut(cx, cy).class = Class::Obstacle;
+                let dm = self.data_mut(cx, cy);
+                dm.class = Class::Obstacle;
+                dm.far_raised = true;
                 changed.push((cx, cy));
             }
         }
+    }
+
+    /// A stair continuation (rule 2) is a verdict on far evidence, and far evidence takes it
+    /// back: once the rules find the cell traversable on level, fully observed ground, it goes
+    /// back to unknown (judged from close by as before, so the rule may raise it again). The step it was raised
+    /// on may have been a neighbour's passing returns: on `loop` a canopy's, which came in before
+    /// the ground below it was known and left once it was, had raised a chain of flat ground
+    /// 12-13 m from the path that no view from out there could clear.
+    fn retract_stair(&mut self, cx: i64, cy: i64, d: &CellData, changed: &mut Vec<(i64, i64)>) {
+        if d.class != Class::Obstacle || !d.far_raised {
+            return;
+        }
+        // Out here a stair's upper treads may be hidden behind their risers, and a cell on a
+        // riser may hold returns of both treads: only a cell whose own returns lie within
+        // `max_step_m` and whose neighbourhood as the rules read it (5 x 5) is all observed,
+        // the means level with its own within half of it, goes back.
+        let half_step = 0.5 * self.cfg.max_step_m;
+        let min_n = self.rules.min_points();
+        let own = d.evidence().stats();
+        let level = own.n >= min_n
+            && own.max_m - own.min_m < self.cfg.max_step_m
+            && (-2..=2)
+                .flat_map(|dy| (-2..=2).map(move |dx| (dx, dy)))
+                .filter(|&o| o != (0, 0))
+                .all(|(dx, dy)| {
+                    self.data(cx + dx, cy + dy).is_some_and(|n| {
+                        let n = n.evidence().stats();
+                        n.n >= min_n && (n.mean_m - own.mean_m).abs() < half_step
+                    })
+                });
+        if !level || self.rules.classify(&self.neighbourhood(cx, cy)).class() != Class::Traversable
+        {
+            return;
+        }
+        let dm = self.data_mut(cx, cy);
+        dm.class = Class::Unknown;
+        dm.far_raised = false;
+        changed.push((cx, cy));
     }
 
     /// An obstacle that free space wiped out here (its evidence gone) is judged again from what
@@ -211,5 +256,104 @@ impl Mapper {
                 self.rules.classify(&self.neighbourhood(cx, cy)),
                 Verdict::Step | Verdict::NeighbourStep | Verdict::TopStep
             )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::synth::{cast_scan, LidarSpec, Rng};
+    use crate::{Class, Config, Mapper, RobotPose};
+
+    /// Flat ground with a 1 m box over x 6-7, y -0.5-0.5.
+    fn world(x: f64, y: f64) -> f64 {
+        if (6.0..7.0).contains(&x) && y.abs() < 0.5 {
+            1.0
+        } else {
+            0.0
+        }
+    }
+
+    /// The ground and the box seen from close by, driving along y = 0 from x = 0 to 5.
+    fn mapped() -> Mapper {
+        let spec = LidarSpec {
+            az_step_deg: 0.4,
+            max_range_m: 20.0,
+            ..LidarSpec::vlp16()
+        };
+        let mut m = Mapper::new(Config::default()).unwrap();
+        let mut rng = Rng::new(5);
+        for i in 0..6 {
+            let x = f64::from(i);
+            let pts = cast_scan(&world, [x, 0.0, 0.7], &spec, &mut rng);
+            let robot = RobotPose {
+                x_m: x,
+                y_m: 0.0,
+                z_m: 0.0,
+                yaw_rad: 0.0,
+            };
+            m.update_sweep(pts, [x, 0.0, 0.7], &robot, 10.0 + f64::from(i) * 0.1)
+                .unwrap();
+        }
+        m
+    }
+
+    #[test]
+    fn a_stair_continuation_goes_back_to_unknown_once_its_step_is_gone() {
+        let mut m = mapped();
+        let l = m.lattice();
+        // Flat ground the stair rule had raised (its step was a neighbour's passing returns),
+        // the foot of the box raised the same way, and flat ground judged an obstacle from
+        // close by: seen now from 13-17 m, beyond the processing distance.
+        let flat_raised = l.cell_of(3.0, 3.0);
+        let foot_raised = l.cell_of(5.9, 0.1);
+        let flat_close = l.cell_of(3.0, -3.0);
+        // And flat ground raised two cells from one not seen from out here (a stair's upper
+        // tread behind its riser).
+        let beside_hidden = l.cell_of(2.0, 3.0);
+        let hidden = (beside_hidden.0, beside_hidden.1 + 2);
+        let h = m.data_mut(hidden.0, hidden.1);
+        h.cur = Default::default();
+        h.prev = Default::default();
+        for (c, far_raised) in [
+            (flat_raised, true),
+            (foot_raised, true),
+            (flat_close, false),
+            (beside_hidden, true),
+        ] {
+            assert!(m.data(c.0, c.1).is_some(), "{c:?} observed");
+            let d = m.data_mut(c.0, c.1);
+            d.class = Class::Obstacle;
+            d.far_raised = far_raised;
+        }
+        let robot = RobotPose {
+            x_m: -10.0,
+            y_m: 0.0,
+            z_m: 0.0,
+            yaw_rad: 0.0,
+        };
+        let mut changed = Vec::new();
+        for c in [flat_raised, foot_raised, flat_close, beside_hidden] {
+            let d = *m.data(c.0, c.1).unwrap();
+            m.judge_from_afar(c.0, c.1, &d, &robot, &mut changed);
+        }
+        assert_eq!(m.class(flat_raised.0, flat_raised.1), Class::Unknown);
+        assert!(!m.data(flat_raised.0, flat_raised.1).unwrap().far_raised);
+        assert_eq!(
+            m.class(foot_raised.0, foot_raised.1),
+            Class::Obstacle,
+            "the rules still find the box's step: {}",
+            m.describe(foot_raised.0, foot_raised.1)
+        );
+        assert_eq!(
+            m.class(flat_close.0, flat_close.1),
+            Class::Obstacle,
+            "far evidence does not clear a close verdict"
+        );
+        assert_eq!(
+            m.class(beside_hidden.0, beside_hidden.1),
+            Class::Obstacle,
+            "a neighbour not seen may hide the step"
+        );
+        assert_eq!(changed, vec![flat_raised]);
     }
 }

@@ -175,6 +175,7 @@ impl Mapper {
         let seen_m = d.closest_view_m();
         let dm = self.data_mut(cx, cy);
         dm.far_wiped = false;
+        dm.far_raised = false;
         dm.class_seen_m = seen_m;
         if new != old {
             dm.class = new;
