@@ -107,10 +107,10 @@ impl Mapper {
 
     /// A stair continuation (rule 2) is a verdict on far evidence, and far evidence takes it
     /// back: once the rules find the cell traversable on level, fully observed ground, it goes
-    /// back to unknown (judged from close by as before, so the rule may raise it again). The step it was raised
-    /// on may have been a neighbour's passing returns: on `loop` a canopy's, which came in before
-    /// the ground below it was known and left once it was, had raised a chain of flat ground
-    /// 12-13 m from the path that no view from out there could clear.
+    /// back to unknown (judged from close by as before, so the rule may raise it again). The
+    /// step it was raised on may have been a neighbour's passing returns: on `loop` the rule had
+    /// raised flat ground under a canopy 12-13 m from the path (most likely on the canopy's
+    /// returns before the ground below was known), and no view from out there could clear it.
     fn retract_stair(&mut self, cx: i64, cy: i64, d: &CellData, changed: &mut Vec<(i64, i64)>) {
         if d.class != Class::Obstacle || !d.far_raised {
             return;
