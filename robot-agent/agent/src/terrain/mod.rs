@@ -67,19 +67,17 @@ fn robot_pose(pose: &PoseMap) -> mapping::RobotPose {
     }
 }
 
-/// Maps one kept sweep into `mapper` at the pose it was last given.
+/// Maps one kept sweep into `mapper` at the pose it was last given, under `live`'s ground
+/// (`Mapper::update_sweep_under`).
 fn map_kept(
     mapper: &mut mapping::Mapper,
     r: &rebuild::Remap,
     base_from_lidar: &nalgebra::Isometry3<f64>,
-    live: Option<&mapping::Mapper>,
+    live: &mapping::Mapper,
 ) -> Result<mapping::UpdateReport, mapping::MapError> {
     let (pts, origin) = rebuild::to_map(r, base_from_lidar);
     let robot = robot_pose(&PoseMap::from_iso(r.map_from_base));
-    match live {
-        Some(live) => mapper.update_sweep_under(pts, origin, &robot, r.t_s, live),
-        None => mapper.update_sweep(pts, origin, &robot, r.t_s),
-    }
+    mapper.update_sweep_under(pts, origin, &robot, r.t_s, live)
 }
 
 /// See the module docs.
@@ -267,7 +265,7 @@ impl TerrainMap {
             sh.moves.add(&r, base_from_lidar);
             // The live map's ground keeps a canopy the thinned sweeps saw alone out of the
             // rebuilt cells (`Mapper::update_sweep_under`).
-            match map_kept(&mut sh.mapper, &r, base_from_lidar, Some(&self.mapper)) {
+            match map_kept(&mut sh.mapper, &r, base_from_lidar, &self.mapper) {
                 Ok(u) => self.cleared_cells += u.cleared_cells,
                 Err(e) => {
                     // The shadow cannot go past a sweep it refuses: this rebuild is given up,
@@ -362,7 +360,7 @@ impl TerrainMap {
                 return Ok(Some(m));
             }
             for r in batch {
-                map_kept(&mut m, &r, base_from_lidar, Some(&self.mapper))?;
+                map_kept(&mut m, &r, base_from_lidar, &self.mapper)?;
                 after = Some(r.t_s);
             }
         }
