@@ -143,6 +143,9 @@ pub struct UpdateReport {
     pub beams_marched: usize,
     /// Cells whose old evidence a beam contradicted (walkers gone, stray points).
     pub cleared_cells: usize,
+    /// Cells whose stored returns stood above this sweep's ceiling for them: taken in under a
+    /// ceiling set before the ground below was known (a canopy), dropped for this sweep's.
+    pub ceiling_wiped: usize,
     /// Cells whose points this sweep were ignored: seen much better from closer before.
     pub far_skipped: usize,
     /// Samples the revisit offset was fitted to in this update, this sweep's and the last few

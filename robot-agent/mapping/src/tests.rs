@@ -601,3 +601,44 @@ fn a_view_is_the_cells_it_covers() {
     }
     assert!(known > 1000, "{known}");
 }
+
+/// Points on a square lattice `side` points wide, 7 cm apart, from (`x0`, `y0`), at height `z`.
+fn sheet(x0: f32, y0: f32, side: usize, z: f32) -> Vec<[f32; 3]> {
+    (0..side)
+        .flat_map(|i| (0..side).map(move |j| [x0 + 0.07 * i as f32, y0 + 0.07 * j as f32, z]))
+        .collect()
+}
+
+#[test]
+fn a_canopy_taken_in_before_its_ground_was_seen_goes_once_the_ground_is() {
+    let robot = RobotPose {
+        x_m: 0.0,
+        y_m: 0.0,
+        z_m: 0.0,
+        yaw_rad: 0.0,
+    };
+    let mut m = Mapper::new(Config::default()).unwrap();
+    // A sweep crossed a canopy 2.4 m up with no ring on the ground below or around it: with
+    // no ground known, the canopy set its own ceiling and came in as the cells' surface.
+    m.update_points(sheet(3.0, 2.0, 30, 2.4), &robot, 10.0, Evidence::Scan)
+        .unwrap();
+    let (cx, cy) = cell_of(&m, 4.0, 3.0);
+    assert!(m.height_m(cx, cy).is_some_and(|h| h > 2.3));
+    // A later sweep sees the ground below and around, and not the canopy.
+    let rep = m
+        .update_points(sheet(2.0, 1.0, 60, 0.0), &robot, 12.0, Evidence::Scan)
+        .unwrap();
+    assert!(
+        m.height_m(cx, cy).is_some_and(|h| h.abs() < 0.05),
+        "{:?}",
+        m.height_m(cx, cy)
+    );
+    let patch = classes_in(&m, 3.0, 2.0, 5.0, 4.0);
+    assert_eq!(count(&patch, |c| c == Class::Obstacle), 0, "{patch:?}");
+    assert_eq!(
+        count(&patch, |c| c == Class::Traversable),
+        patch.len(),
+        "{patch:?}"
+    );
+    assert!(rep.ceiling_wiped > 100, "{}", rep.ceiling_wiped);
+}

@@ -433,8 +433,8 @@ fn eval(a: EvalArgs) -> anyhow::Result<()> {
             r.slam_max_tilt_error_deg, r.slam_mean_tilt_error_deg, r.collisions
         );
         eprintln!(
-            "errors: {:?}; overhung {} cleared {} one-sided steps {}",
-            r.errors, r.overhung_cells, r.cleared_cells, r.one_sided_steps
+            "errors: {:?}; overhung {} cleared {} ceiling-wiped {} one-sided steps {}",
+            r.errors, r.overhung_cells, r.cleared_cells, r.ceiling_wiped_cells, r.one_sided_steps
         );
         let o = &r.obstacle_positions;
         eprintln!(

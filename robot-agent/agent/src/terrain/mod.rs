@@ -88,6 +88,7 @@ pub struct TerrainMap {
     corridor_rule: CorridorRule,
     map_follow_radius_m: f64,
     cleared_cells: usize,
+    ceiling_wiped_cells: usize,
     /// Sweeps kept for rebuilding after the pose graph's corrections (with `[graph] enabled`).
     kept: Option<rebuild::SweepStore>,
     /// The rebuild under way, if any (the live `mapper` serves meanwhile).
@@ -119,6 +120,7 @@ impl TerrainMap {
             },
             map_follow_radius_m: cfg.gnss.map_follow_radius_m,
             cleared_cells: 0,
+            ceiling_wiped_cells: 0,
             kept: cfg.slam.graph.enabled.then(|| {
                 rebuild::SweepStore::new(
                     cfg.slam.graph.map_rebuild_spacing_m,
@@ -145,7 +147,7 @@ impl TerrainMap {
         let u = self
             .mapper
             .update_scan(scan, pose_map_lidar, &robot_pose(pose), scan.stamp_s)?;
-        self.cleared_cells += u.cleared_cells;
+        self.count(&u);
         Ok(MapUpdate {
             changed_tiles: u.changed_tiles,
             classified_cells: u.classified_cells,
@@ -163,7 +165,7 @@ impl TerrainMap {
         t_s: f64,
     ) -> Result<mapping::UpdateReport, mapping::MapError> {
         let u = self.mapper.update_sweep(points_map, sensor_m, robot, t_s)?;
-        self.cleared_cells += u.cleared_cells;
+        self.count(&u);
         Ok(u)
     }
 
@@ -266,7 +268,10 @@ impl TerrainMap {
             // The live map's ground keeps a canopy the thinned sweeps saw alone out of the
             // rebuilt cells (`Mapper::update_sweep_under`).
             match map_kept(&mut sh.mapper, &r, base_from_lidar, &self.mapper) {
-                Ok(u) => self.cleared_cells += u.cleared_cells,
+                Ok(u) => {
+                    self.cleared_cells += u.cleared_cells;
+                    self.ceiling_wiped_cells += u.ceiling_wiped;
+                }
                 Err(e) => {
                     // The shadow cannot go past a sweep it refuses: this rebuild is given up,
                     // the live map stays, the next correction starts another.
@@ -374,6 +379,18 @@ impl TerrainMap {
     /// Cells whose stale evidence free space cleared, since the start.
     pub fn cleared_cells(&self) -> usize {
         self.cleared_cells
+    }
+
+    /// Cells whose evidence a lower ceiling dropped (a canopy taken in before its ground was
+    /// seen), since the start.
+    pub fn ceiling_wiped_cells(&self) -> usize {
+        self.ceiling_wiped_cells
+    }
+
+    /// Adds an update's cleared and ceiling-wiped cells to the totals.
+    fn count(&mut self, u: &mapping::UpdateReport) {
+        self.cleared_cells += u.cleared_cells;
+        self.ceiling_wiped_cells += u.ceiling_wiped;
     }
 
     /// The map frame moved (a GNSS or gravity correction): the stored heights within

@@ -186,6 +186,20 @@ impl CellData {
         }
     }
 
+    /// Drops the cell's evidence (it held something that has gone, or returns it should never
+    /// have taken), so later points rebuild it; its class may then be judged again from anywhere,
+    /// from beyond the processing distance when `far`.
+    pub(super) fn drop_evidence(&mut self, far: bool) {
+        self.cur = Moments::default();
+        self.prev = Moments::default();
+        self.pending = Moments::default();
+        self.cur_range_m = f32::INFINITY;
+        self.prev_range_m = f32::INFINITY;
+        self.seen_range_m = f32::INFINITY;
+        self.class_range_m = f32::INFINITY;
+        self.far_wiped = far;
+    }
+
     /// The epochs with index `before` or earlier, and the driven height, moved up by `dz`
     /// metres: an earlier visit's evidence onto the current frame.
     pub(super) fn shift_epochs_before(&mut self, before: i64, dz: f64) {

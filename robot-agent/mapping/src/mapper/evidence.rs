@@ -12,6 +12,11 @@ use crate::filters;
 /// filter; lower ones are ground and cannot raise an obstacle on their own, metres.
 const SUSPECT_ABOVE_M: f32 = 0.04;
 
+/// A cell's stored returns standing this much above the sweep's ceiling for it came in under a
+/// ceiling set before the ground below was known, metres: well above the few centimetres the
+/// ground under a ceiling moves from sweep to sweep.
+const CEILING_WIPE_MARGIN_M: f32 = 0.3;
+
 impl Mapper {
     /// Steps 1-2: drops the points above the climb cone or out of range around the robot, then
     /// isolated points among those standing above their cell's lowest return this sweep.
@@ -206,6 +211,21 @@ impl Mapper {
             let (cx, cy) = self.win.global(i);
             let (ccx, ccy) = self.center_m(cx, cy);
             let range_m = norm2(ccx - robot.x_m, ccy - robot.y_m) as f32;
+            // Returns a ceiling now drops were taken in under one set before the ground below
+            // was known: a canopy seen with no ring on the ground beneath it set its own ceiling
+            // and became the cell's surface. The evidence is running moments, so they cannot be
+            // taken out alone: the cell starts again from this sweep's points.
+            let ceiling = self.win.ceiling[i];
+            let wiped = kind == Evidence::Scan
+                && self.data(cx, cy).is_some_and(|d| {
+                    d.evidence().n > 0 && d.evidence().zmax > ceiling + CEILING_WIPE_MARGIN_M
+                });
+            if wiped {
+                let far = f64::from(range_m) > self.cfg.processing_distance_m;
+                self.data_mut(cx, cy).drop_evidence(far);
+                self.refresh_ground(cx, cy);
+                rep.ceiling_wiped += 1;
+            }
             let far_factor = self.cfg.far_evidence_factor as f32;
             let stale_s = self.cfg.evidence_stale_s as f32;
             let grows = self.cfg.max_step_m as f32;
@@ -292,7 +312,7 @@ impl Mapper {
                 d.hits = d.hits.saturating_add(1);
             }
             d.stamp_s = stamp;
-            if changed {
+            if changed || wiped {
                 self.refresh_ground(cx, cy);
                 dirty.push((cx, cy));
             }

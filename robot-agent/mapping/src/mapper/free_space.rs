@@ -3,7 +3,6 @@
 //! whose stored points stand where a beam just passed freely held something that has gone (a
 //! walker, a stray point), and its old evidence is dropped.
 
-use super::cell_data::Moments;
 use super::{floor_i64, norm2, Mapper, RobotPose, UpdateReport};
 
 /// The beams of one sweep over one cell.
@@ -194,14 +193,7 @@ impl Mapper {
                 let d = self.data_mut(cx, cy);
                 d.headroom = true;
                 if stale {
-                    d.cur = Moments::default();
-                    d.prev = Moments::default();
-                    d.pending = Moments::default();
-                    d.cur_range_m = f32::INFINITY;
-                    d.prev_range_m = f32::INFINITY;
-                    d.seen_range_m = f32::INFINITY;
-                    d.class_range_m = f32::INFINITY;
-                    d.far_wiped = far;
+                    d.drop_evidence(far);
                     rep.cleared_cells += 1;
                     self.refresh_ground(cx, cy);
                 }

@@ -190,6 +190,7 @@ pub fn run(
     rep.heights.pose_tilt_error_deg = Percentiles::of(&mut tilt);
     rep.scans_not_mapped = rig.agent.scans_not_mapped();
     rep.cleared_cells = rig.agent.terrain().cleared_cells();
+    rep.ceiling_wiped_cells = rig.agent.terrain().ceiling_wiped_cells();
     let mapper = rig.agent.mapper();
     score(
         mapper,

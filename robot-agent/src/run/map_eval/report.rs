@@ -42,6 +42,9 @@ pub struct MapEvalReport {
     pub one_sided_steps: usize,
     /// Cells whose stale evidence free space cleared, over the run.
     pub cleared_cells: usize,
+    /// Cells whose evidence a lower ceiling dropped (a canopy taken in before its ground was
+    /// seen), over the run.
+    pub ceiling_wiped_cells: usize,
     /// Mean wall-clock time of one sweep through the agent (localisation and mapping; mapping
     /// alone with truth poses), milliseconds.
     pub ms_per_update: f64,
