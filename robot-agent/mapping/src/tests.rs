@@ -642,3 +642,43 @@ fn a_canopy_taken_in_before_its_ground_was_seen_goes_once_the_ground_is() {
     );
     assert!(rep.ceiling_wiped > 100, "{}", rep.ceiling_wiped);
 }
+
+#[test]
+fn steps_judged_against_a_canopy_clear_when_a_far_view_wipes_it() {
+    let at = |x_m: f64, y_m: f64| RobotPose {
+        x_m,
+        y_m,
+        z_m: 0.0,
+        yaw_rad: 0.0,
+    };
+    let in_patch = |p: &[f32; 3]| (2.95..5.1).contains(&p[0]) && (1.95..4.1).contains(&p[1]);
+    let mut m = Mapper::new(Config::default()).unwrap();
+    // A canopy with nothing of the ground below or around it, then the ground around it and
+    // none below: the cells around are judged, from close by, as steps down from the canopy.
+    m.update_points(
+        sheet(3.0, 2.0, 30, 2.4),
+        &at(0.0, 0.0),
+        10.0,
+        Evidence::Scan,
+    )
+    .unwrap();
+    let mut around = sheet(2.0, 1.0, 60, 0.0);
+    around.retain(|p| !in_patch(p));
+    m.update_points(around, &at(0.0, 0.0), 11.0, Evidence::Scan)
+        .unwrap();
+    let steps = count(&classes_in(&m, 2.0, 1.0, 6.0, 5.0), |c| {
+        c == Class::Obstacle
+    });
+    assert!(steps > 20, "the setting: steps around the canopy ({steps})");
+    // From 19 m, beyond the processing distance, a view of the ground below the canopy.
+    let mut below = sheet(2.0, 1.0, 60, 0.0);
+    below.retain(in_patch);
+    let rep = m
+        .update_points(below, &at(-15.0, 3.0), 30.0, Evidence::Scan)
+        .unwrap();
+    assert!(rep.ceiling_wiped > 50, "{}", rep.ceiling_wiped);
+    let (cx, cy) = cell_of(&m, 4.0, 3.0);
+    assert!(m.height_m(cx, cy).is_some_and(|h| h.abs() < 0.05));
+    let after = classes_in(&m, 2.0, 1.0, 6.0, 5.0);
+    assert_eq!(count(&after, |c| c == Class::Obstacle), 0, "{after:?}");
+}

@@ -134,6 +134,10 @@ pub(super) struct CellData {
     /// Free space wiped this cell from beyond the processing distance since it was last
     /// classified: it may be judged again from out there (towards traversable or unknown).
     pub(super) far_wiped: bool,
+    /// A ceiling wipe dropped this cell's evidence, or a neighbour's within the rules' 5 x 5,
+    /// since it was last classified: its verdict may rest on a canopy's returns, and far rule 3
+    /// may judge it again from out there, to overhung too.
+    pub(super) canopy_suspect: bool,
     /// The class is an obstacle the stair rule raised from beyond the processing distance (far
     /// rule 2): far evidence may take it back (far rule 5).
     pub(super) far_raised: bool,
@@ -168,6 +172,7 @@ impl Default for CellData {
             headroom: false,
             far_wiped: false,
             far_raised: false,
+            canopy_suspect: false,
             driven: false,
             driven_z: 0.0,
             class: Class::default(),
@@ -198,6 +203,7 @@ impl CellData {
         self.seen_range_m = f32::INFINITY;
         self.class_range_m = f32::INFINITY;
         self.far_wiped = far;
+        self.canopy_suspect = false;
     }
 
     /// The epochs with index `before` or earlier, and the driven height, moved up by `dz`

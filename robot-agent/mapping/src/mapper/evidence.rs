@@ -224,6 +224,7 @@ impl Mapper {
                 let far = f64::from(range_m) > self.cfg.processing_distance_m;
                 self.data_mut(cx, cy).drop_evidence(far);
                 self.refresh_ground(cx, cy);
+                self.suspect_canopy_verdicts(cx, cy);
                 rep.ceiling_wiped += 1;
             }
             let far_factor = self.cfg.far_evidence_factor as f32;
@@ -318,6 +319,28 @@ impl Mapper {
             }
         }
         self.win.touched = touched;
+    }
+
+    /// After a ceiling wipe of `(cx, cy)`: the obstacle verdicts that read its evidence (the
+    /// cell's and those in its 5 x 5) may rest on the canopy it held, judged as neighbour steps
+    /// against it; they forget where they were judged from, and are marked `canopy_suspect` for
+    /// the far rules. On `loop` a canopy 12 m from the path made a 22-cell blob of such verdicts
+    /// on ground the rules found level once the canopy cell was wiped from 19 m, beyond the
+    /// processing distance, where far evidence does not clear a close verdict.
+    fn suspect_canopy_verdicts(&mut self, cx: i64, cy: i64) {
+        for dy in -2..=2 {
+            for dx in -2..=2 {
+                let (nx, ny) = (cx + dx, cy + dy);
+                let obstacle = self
+                    .data(nx, ny)
+                    .is_some_and(|d| d.class == crate::classify::Class::Obstacle);
+                if obstacle || (dx, dy) == (0, 0) {
+                    let d = self.data_mut(nx, ny);
+                    d.canopy_suspect = true;
+                    d.class_range_m = f32::INFINITY;
+                }
+            }
+        }
     }
 
     /// Whether a far view's points for cell `(cx, cy)` show something new: a top more than

@@ -8,7 +8,8 @@
 //! 2. [`Mapper::stair_continues`]: a cell left unknown from close by that the rules now find a
 //!    step, beside an obstacle judged from close by (a stair's upper treads);
 //! 3. [`Mapper::rejudge_wiped`]: an obstacle whose evidence free space wiped out here is judged
-//!    again, towards traversable or unknown only (a walker's trail behind the robot);
+//!    again, towards traversable or unknown only (a walker's trail behind the robot), and so is
+//!    one whose verdict may rest on a canopy a ceiling wipe dropped, to overhung too;
 //! 4. [`Mapper::rejudge_seen_nearer`]: an obstacle judged from close by on evidence seen only
 //!    from afar is judged again when nearer evidence comes in, towards traversable, overhung or
 //!    unknown only;
@@ -150,7 +151,8 @@ impl Mapper {
     /// beside it that were steps against it keep their close verdicts, because a grazing beam
     /// can also slip past a ramp's side face inside its boundary cell, and clearing the foot of
     /// that face would be worse than a trail's fringe (measured on `slopes`: recall 0.988 ->
-    /// 0.967).
+    /// 0.967). A ceiling wipe is another matter: what it dropped were returns above the
+    /// ceiling, and the verdicts around that read them are judged again too (`canopy_suspect`).
     fn rejudge_wiped(
         &mut self,
         cx: i64,
@@ -159,13 +161,15 @@ impl Mapper {
         robot: &RobotPose,
         changed: &mut Vec<(i64, i64)>,
     ) {
-        let again = d.class == Class::Obstacle && d.far_wiped;
+        let again = d.class == Class::Obstacle && (d.far_wiped || d.canopy_suspect);
         if again {
             let dist = self.distance_m(cx, cy, robot);
-            // A wiped cell without headroom keeps its verdict rather than turn overhung.
+            // A wiped cell without headroom keeps its verdict rather than turn overhung (a
+            // grazing beam slips under a car's edge), unless what went was a canopy's returns:
+            // overhung is what such a cell is.
             let new = self
                 .cleared_class(cx, cy, d.headroom)
-                .filter(|&c| c != Class::Overhung);
+                .filter(|&c| c != Class::Overhung || d.canopy_suspect);
             if let Some(c) = new.filter(|&c| c != d.class) {
                 let dm = self.data_mut(cx, cy);
                 dm.class = c;

@@ -176,6 +176,7 @@ impl Mapper {
         let dm = self.data_mut(cx, cy);
         dm.far_wiped = false;
         dm.far_raised = false;
+        dm.canopy_suspect = false;
         dm.class_seen_m = seen_m;
         if new != old {
             dm.class = new;
