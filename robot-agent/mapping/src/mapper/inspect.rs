@@ -53,7 +53,7 @@ impl Mapper {
             }
         };
         format!(
-            "cell ({cx}, {cy}) {:?} (rules now: {:?}); cur {} from {:.1} m | prev {} from {:.1} m; closest view {:.1} m, accepted {:.1} s; headroom {}; driven {} at {:.3}; changed {} s; judged from {:.1} m; far-wiped {}; far-raised {}",
+            "cell ({cx}, {cy}) {:?} (rules now: {:?}); cur {} from {:.1} m | prev {} from {:.1} m; closest view {:.1} m, accepted {:.1} s; headroom {}; driven {} at {:.3}; changed {} s; judged from {:.1} m; far-wiped {}; far-raised {}; canopy-suspect {}",
             d.class,
             self.explain(cx, cy),
             ep(&d.cur),
@@ -68,7 +68,8 @@ impl Mapper {
             d.stamp_s,
             d.class_range_m,
             d.far_wiped,
-            d.far_raised
+            d.far_raised,
+            d.canopy_suspect
         )
     }
 
