@@ -255,3 +255,51 @@ fn steps_judged_on_distant_evidence_clear_when_a_nearer_view_shows_flat_ground()
         "step cells beside the column after the nearer view"
     );
 }
+
+/// Obstacle cells over a 36 m strip after a revisit along it whose frame drifts from the first
+/// visit's by 6 mm a metre (beyond the plane's tilt limit, so each fit is a median), seen one
+/// row at a time: once the cells within reach are aligned, the leading edge of the reach brings
+/// some 15 samples every 3 s.
+fn obstacles_after_a_drifting_revisit() -> usize {
+    let strip = |x0: f64, x1: f64, y0: f64, y1: f64, z: &dyn Fn(f64) -> f64| {
+        let mut pts = Vec::new();
+        let (nx, ny) = (((x1 - x0) / 0.05) as usize, ((y1 - y0) / 0.05) as usize);
+        for i in 0..nx {
+            for j in 0..ny {
+                let (x, y) = (x0 + (i as f64 + 0.5) * 0.05, y0 + (j as f64 + 0.5) * 0.05);
+                pts.push([x as f32, y as f32, z(x) as f32]);
+            }
+        }
+        pts
+    };
+    let at = |x_m: f64, z_m: f64| RobotPose {
+        x_m,
+        y_m: -2.0,
+        z_m,
+        yaw_rad: 0.0,
+    };
+    let mut m = Mapper::new(Config::default()).unwrap();
+    for (k, x) in [6.0, 18.0, 30.0].into_iter().enumerate() {
+        let pts = strip(x - 6.0, x + 6.0, -1.5, 1.5, &|_| 0.0);
+        m.update_points(pts, &at(x, 0.0), 0.1 * k as f64, Evidence::Scan)
+            .unwrap();
+    }
+    let offset = |x: f64| 0.05 + 0.006 * x;
+    for k in 0..=300 {
+        let x = 0.1 * k as f64;
+        let pts = strip((x - 11.0).max(0.0), (x + 11.0).min(36.0), 0.0, 0.2, &offset);
+        m.update_points(
+            pts,
+            &at(x, offset(x)),
+            100.0 + 0.1 * k as f64,
+            Evidence::Scan,
+        )
+        .unwrap();
+    }
+    obstacles_in(&m, (20.0, -1.4), (34.0, 1.4))
+}
+
+#[test]
+fn refits_along_the_way_follow_a_drifting_offset() {
+    assert_eq!(obstacles_after_a_drifting_revisit(), 0);
+}

@@ -109,6 +109,10 @@ pub(super) struct CellData {
     /// cell current before a revisit's offset moved its old epochs, seconds (negative infinity:
     /// none waiting).
     pub(super) unaligned_s: f32,
+    /// What a revisit's plane moved the earlier visit's epochs by when it made the cell current
+    /// before any sweep within the processing distance sampled it, metres (NaN: nothing
+    /// waiting): the cell is still sampled once, against its old epochs as they were.
+    pub(super) plane_shift_m: f32,
     /// Closest robot distance from which this cell was judged a drop-off, metres.
     pub(super) neg_range_m: f32,
     /// Closest robot distance from which the cell's current class was judged, metres.
@@ -158,6 +162,7 @@ impl Default for CellData {
             accepted_s: f32::NEG_INFINITY,
             current_s: f32::NEG_INFINITY,
             unaligned_s: f32::NEG_INFINITY,
+            plane_shift_m: f32::NAN,
             neg_range_m: f32::INFINITY,
             class_range_m: f32::INFINITY,
             class_seen_m: f32::INFINITY,

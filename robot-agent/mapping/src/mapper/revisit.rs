@@ -19,7 +19,9 @@
 //! earlier visit's cell within reach (the processing distance and the rules' neighbourhood) are
 //! moved by it before the sweep is merged, and the cell counts as current from then on. The
 //! plane stays in use for the cells that come within reach in the next sweeps until
-//! `revisit_gap_s` after its last fit. Cells seen again from close by in the sweeps before the
+//! `revisit_gap_s` after its last fit, and keeps being refitted along the way: a cell it made
+//! current before any sweep sampled it is still sampled once, against its old epochs as they
+//! were (`plane_shift_m`), and a refit needs only [`REFIT_MIN_CELLS`]. Cells seen again from close by in the sweeps before the
 //! fit (it waits for `revisit_min_cells` samples) are moved by it too, within [`CATCH_UP_S`].
 //! Only epochs nearer in time to the sampled visit than to the fit move: a far glimpse taken on
 //! the way back is in the current frame already, however long ago.
@@ -61,6 +63,15 @@ const SAMPLE_WINDOW_S: f64 = 3.0;
 /// at 368.3 s met the fit of 373 s; left unmoved, their old epochs stood 10 cm above the new ones
 /// as false obstacles).
 const CATCH_UP_S: f32 = 10.0;
+
+/// While a fitted plane is in use, a refit along the way needs only this many samples: it
+/// follows an offset `revisit_min_cells` samples established, and once the cells within reach
+/// are aligned only the leading edge of the reach brings new ones, a few per sweep. Before
+/// refits (and the sampling of cells a plane made current), the plane of one fit served for
+/// `revisit_gap_s` after it: on `loop` with the graph on, one fitted at -0.115 m moved cells
+/// 27 m further on by that much where the offset had drifted to -0.075 m, and the 4 cm between
+/// them and their neighbours read as steps.
+const REFIT_MIN_CELLS: usize = 12;
 
 /// One sample of the offset: a ground cell (lattice index, and its centre in the map frame,
 /// metres), its height in the sweep less the earlier visit's (metres), and the sweep's time
@@ -151,10 +162,14 @@ impl Mapper {
                 let d = self.data_mut(cx, cy);
                 d.current_s = t;
                 d.unaligned_s = f32::NEG_INFINITY;
+                // Most cells are made current here before any sweep sampled them (beyond the
+                // processing distance, or unseen this sweep); they are still sampled once.
+                let dz = if shift { off.dz(x, y) } else { 0.0 };
+                d.plane_shift_m = dz as f32;
                 if shift {
                     // Only the earlier visit's epochs: far glimpses taken on the way back are
                     // in the current frame already.
-                    d.shift_epochs_before(before.min(off.until_epoch), off.dz(x, y));
+                    d.shift_epochs_before(before.min(off.until_epoch), dz);
                     self.refresh_ground(cx, cy);
                     rep.revisit_moved += 1;
                     if dist <= pd {
@@ -186,6 +201,7 @@ impl Mapper {
         {
             self.revisit_samples.pop_front();
         }
+        let mut sampled: Vec<(i64, i64)> = Vec::new();
         for &i in &self.win.touched {
             let low: Moments = self.win.low[i];
             if low.n < 2 {
@@ -197,9 +213,15 @@ impl Mapper {
                 continue;
             }
             let Some(d) = self.data(cx, cy) else { continue };
-            if t - d.current_s <= gap && t - d.unaligned_s > CATCH_UP_S {
+            // What a plane moved the old epochs by, for a cell it made current from beyond
+            // the processing distance: sampled against the old epochs as they were, so the
+            // fit keeps measuring along the way instead of serving one plane for
+            // `revisit_gap_s`.
+            let unshift = f64::from(d.plane_shift_m);
+            if t - d.current_s <= gap && t - d.unaligned_s > CATCH_UP_S && unshift.is_nan() {
                 continue;
             }
+            let unshift = if unshift.is_nan() { 0.0 } else { unshift };
             // A far view's heights carry its attitude error times its range: the old visit's
             // offset is measured on what it saw well.
             let (old, seen_m) = d.epochs_before(before);
@@ -209,11 +231,13 @@ impl Mapper {
             let Some(old_epoch) = d.newest_epoch_before(before) else {
                 continue;
             };
+            sampled.push((cx, cy));
             let (old, new) = (old.stats(), low.stats());
+            let old_mean = old.mean_m - unshift;
             if old.n < min_n
                 || old.var_m2 > max_var
                 || new.var_m2 > max_var
-                || (new.mean_m - old.mean_m).abs() > MAX_SAMPLE_M
+                || (new.mean_m - old_mean).abs() > MAX_SAMPLE_M
             {
                 continue;
             }
@@ -221,10 +245,13 @@ impl Mapper {
                 cell: (cx, cy),
                 x_m: x,
                 y_m: y,
-                dz_m: new.mean_m - old.mean_m,
+                dz_m: new.mean_m - old_mean,
                 t_s,
                 old_epoch,
             });
+        }
+        for (cx, cy) in sampled {
+            self.data_mut(cx, cy).plane_shift_m = f32::NAN;
         }
     }
 
@@ -240,7 +267,15 @@ impl Mapper {
         let mut newest: Vec<&Sample> = self.revisit_samples.iter().rev().collect();
         newest.sort_by_key(|s| s.cell);
         newest.dedup_by_key(|s| s.cell);
-        if newest.len() < self.cfg.revisit_min_cells.max(4) {
+        let in_use = self
+            .revisit
+            .is_some_and(|o| t_s - o.t_s <= self.cfg.revisit_gap_s);
+        let min_cells = if in_use {
+            REFIT_MIN_CELLS.min(self.cfg.revisit_min_cells)
+        } else {
+            self.cfg.revisit_min_cells
+        };
+        if newest.len() < min_cells.max(4) {
             return None;
         }
         let mut pairs: Vec<(f64, f64, f64)> = newest
@@ -260,7 +295,14 @@ impl Mapper {
             .map(|s| s.old_epoch)
             .max()?;
         let now = self.epoch_of(t_s);
-        let until_epoch = newest_old + (now - newest_old) / 2;
+        // A refit follows the same earlier visit: which epochs belong to it was settled by the
+        // fit that established the plane. Cells sampled after a plane made them current may
+        // hold a later glimpse among their old epochs, which would drag the boundary forward
+        // over glimpses taken on the way back.
+        let until_epoch = match self.revisit.filter(|_| in_use) {
+            Some(o) => o.until_epoch,
+            None => newest_old + (now - newest_old) / 2,
+        };
         // A frame offset moves all the ground alike; samples that disagree more than that
         // are a changed scene (a car parked, a trunk fallen), not the frame.
         if sigma > MAX_SAMPLE_SPREAD_M || (pairs.len() as f64) < MIN_AGREEING * all as f64 {
