@@ -21,8 +21,9 @@
 //! plane stays in use for the cells that come within reach in the next sweeps until
 //! `revisit_gap_s` after its last fit, and keeps being refitted along the way: a cell it made
 //! current before any sweep sampled it is still sampled once, against its old epochs as they
-//! were (`plane_shift_m`), and a refit needs only [`REFIT_MIN_CELLS`]. Cells seen again from close by in the sweeps before the
-//! fit (it waits for `revisit_min_cells` samples) are moved by it too, within [`CATCH_UP_S`].
+//! were (`plane_shift_m`), and a refit needs only [`REFIT_MIN_CELLS`]. Cells seen again from
+//! close by in the sweeps before the fit (it waits for `revisit_min_cells` samples) are moved by
+//! it too, within [`CATCH_UP_S`].
 //! Only epochs nearer in time to the sampled visit than to the fit move: a far glimpse taken on
 //! the way back is in the current frame already, however long ago.
 
@@ -213,10 +214,11 @@ impl Mapper {
                 continue;
             }
             let Some(d) = self.data(cx, cy) else { continue };
-            // What a plane moved the old epochs by, for a cell it made current from beyond
-            // the processing distance: sampled against the old epochs as they were, so the
-            // fit keeps measuring along the way instead of serving one plane for
-            // `revisit_gap_s`.
+            // What a plane moved the old epochs by, for a cell it made current before this
+            // sample: sampled against the old epochs as they were, so the fit keeps measuring
+            // along the way instead of serving one plane for `revisit_gap_s`. (A cell whose old
+            // epochs include a glimpse the plane did not move gets a wrong sample; the fit's
+            // robust spread drops the few there are.)
             let unshift = f64::from(d.plane_shift_m);
             if t - d.current_s <= gap && t - d.unaligned_s > CATCH_UP_S && unshift.is_nan() {
                 continue;
