@@ -80,6 +80,22 @@ fn map_kept(
     mapper.update_sweep_under(pts, origin, &robot, r.t_s, live)
 }
 
+/// Cells whose evidence the mapper dropped, since the start: by free space (stale evidence)
+/// and by a lower ceiling (a canopy taken in before its ground was seen).
+#[derive(Debug, Default)]
+struct WipeCounts {
+    cleared: usize,
+    ceiling: usize,
+}
+
+impl WipeCounts {
+    /// Adds an update's (live or rebuild) to the totals.
+    fn add(&mut self, u: &mapping::UpdateReport) {
+        self.cleared += u.cleared_cells;
+        self.ceiling += u.ceiling_wiped;
+    }
+}
+
 /// See the module docs.
 pub struct TerrainMap {
     mapper: mapping::Mapper,
@@ -87,8 +103,7 @@ pub struct TerrainMap {
     body: Body,
     corridor_rule: CorridorRule,
     map_follow_radius_m: f64,
-    cleared_cells: usize,
-    ceiling_wiped_cells: usize,
+    wiped: WipeCounts,
     /// Sweeps kept for rebuilding after the pose graph's corrections (with `[graph] enabled`).
     kept: Option<rebuild::SweepStore>,
     /// The rebuild under way, if any (the live `mapper` serves meanwhile).
@@ -119,8 +134,7 @@ impl TerrainMap {
                 newest_evidence_min_points: cfg.repeat.newest_evidence_min_points,
             },
             map_follow_radius_m: cfg.gnss.map_follow_radius_m,
-            cleared_cells: 0,
-            ceiling_wiped_cells: 0,
+            wiped: WipeCounts::default(),
             kept: cfg.slam.graph.enabled.then(|| {
                 rebuild::SweepStore::new(
                     cfg.slam.graph.map_rebuild_spacing_m,
@@ -147,7 +161,7 @@ impl TerrainMap {
         let u = self
             .mapper
             .update_scan(scan, pose_map_lidar, &robot_pose(pose), scan.stamp_s)?;
-        self.count(&u);
+        self.wiped.add(&u);
         Ok(MapUpdate {
             changed_tiles: u.changed_tiles,
             classified_cells: u.classified_cells,
@@ -165,7 +179,7 @@ impl TerrainMap {
         t_s: f64,
     ) -> Result<mapping::UpdateReport, mapping::MapError> {
         let u = self.mapper.update_sweep(points_map, sensor_m, robot, t_s)?;
-        self.count(&u);
+        self.wiped.add(&u);
         Ok(u)
     }
 
@@ -268,10 +282,7 @@ impl TerrainMap {
             // The live map's ground keeps a canopy the thinned sweeps saw alone out of the
             // rebuilt cells (`Mapper::update_sweep_under`).
             match map_kept(&mut sh.mapper, &r, base_from_lidar, &self.mapper) {
-                Ok(u) => {
-                    self.cleared_cells += u.cleared_cells;
-                    self.ceiling_wiped_cells += u.ceiling_wiped;
-                }
+                Ok(u) => self.wiped.add(&u),
                 Err(e) => {
                     // The shadow cannot go past a sweep it refuses: this rebuild is given up,
                     // the live map stays, the next correction starts another.
@@ -378,19 +389,13 @@ impl TerrainMap {
 
     /// Cells whose stale evidence free space cleared, since the start.
     pub fn cleared_cells(&self) -> usize {
-        self.cleared_cells
+        self.wiped.cleared
     }
 
     /// Cells whose evidence a lower ceiling dropped (a canopy taken in before its ground was
     /// seen), since the start.
     pub fn ceiling_wiped_cells(&self) -> usize {
-        self.ceiling_wiped_cells
-    }
-
-    /// Adds an update's cleared and ceiling-wiped cells to the totals.
-    fn count(&mut self, u: &mapping::UpdateReport) {
-        self.cleared_cells += u.cleared_cells;
-        self.ceiling_wiped_cells += u.ceiling_wiped;
+        self.wiped.ceiling
     }
 
     /// The map frame moved (a GNSS or gravity correction): the stored heights within

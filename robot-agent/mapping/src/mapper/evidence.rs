@@ -218,12 +218,13 @@ impl Mapper {
             let ceiling = self.win.ceiling[i];
             let wiped = kind == Evidence::Scan
                 && self.data(cx, cy).is_some_and(|d| {
-                    d.evidence().n > 0 && d.evidence().zmax > ceiling + CEILING_WIPE_MARGIN_M
+                    let e = d.evidence();
+                    e.n > 0 && e.zmax > ceiling + CEILING_WIPE_MARGIN_M
                 });
             if wiped {
+                // The stored ground follows below, with the sweep's points merged (`wiped`).
                 let far = f64::from(range_m) > self.cfg.processing_distance_m;
                 self.data_mut(cx, cy).drop_evidence(far);
-                self.refresh_ground(cx, cy);
                 self.suspect_canopy_verdicts(cx, cy);
                 rep.ceiling_wiped += 1;
             }

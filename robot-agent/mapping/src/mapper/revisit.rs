@@ -134,7 +134,7 @@ impl Mapper {
             rep.revisit_pairs = fit.1;
             self.revisit = Some(fit.0);
         }
-        let Some(off) = self.revisit.filter(|o| t_s - o.t_s <= gap_s) else {
+        let Some(off) = self.revisit_in_use(t_s) else {
             self.revisit = None;
             return;
         };
@@ -179,6 +179,12 @@ impl Mapper {
                 }
             }
         }
+    }
+
+    /// The fitted plane, while it is in use: until `revisit_gap_s` after its last fit.
+    fn revisit_in_use(&self, t_s: f64) -> Option<RevisitOffset> {
+        self.revisit
+            .filter(|o| t_s - o.t_s <= self.cfg.revisit_gap_s)
     }
 
     /// The newest evidence epoch that ended more than `revisit_gap_s` before `t_s`.
@@ -269,10 +275,8 @@ impl Mapper {
         let mut newest: Vec<&Sample> = self.revisit_samples.iter().rev().collect();
         newest.sort_by_key(|s| s.cell);
         newest.dedup_by_key(|s| s.cell);
-        let in_use = self
-            .revisit
-            .is_some_and(|o| t_s - o.t_s <= self.cfg.revisit_gap_s);
-        let min_cells = if in_use {
+        let in_use = self.revisit_in_use(t_s);
+        let min_cells = if in_use.is_some() {
             REFIT_MIN_CELLS.min(self.cfg.revisit_min_cells)
         } else {
             self.cfg.revisit_min_cells
@@ -301,7 +305,7 @@ impl Mapper {
         // fit that established the plane. Cells sampled after a plane made them current may
         // hold a later glimpse among their old epochs, which would drag the boundary forward
         // over glimpses taken on the way back.
-        let until_epoch = match self.revisit.filter(|_| in_use) {
+        let until_epoch = match in_use {
             Some(o) => o.until_epoch,
             None => newest_old + (now - newest_old) / 2,
         };
