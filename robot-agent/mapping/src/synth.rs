@@ -108,3 +108,57 @@ pub fn cast_scan(
     }
     out
 }
+
+/// Points on a lattice `n[0]` wide (along x) and `n[1]` deep, `step_m` apart, the first at
+/// `first`, each at the height `z(x, y)`; x outer, y inner. The flat patches, strips and
+/// canopies the mapper's tests feed it without a ray caster.
+pub fn lattice_points(
+    first: [f64; 2],
+    step_m: f64,
+    n: [usize; 2],
+    z: impl Fn(f64, f64) -> f64,
+) -> Vec<[f32; 3]> {
+    let mut pts = Vec::with_capacity(n[0] * n[1]);
+    for i in 0..n[0] {
+        for j in 0..n[1] {
+            let (x, y) = (first[0] + i as f64 * step_m, first[1] + j as f64 * step_m);
+            pts.push([x as f32, y as f32, z(x, y) as f32]);
+        }
+    }
+    pts
+}
+
+/// A mapper after a short drive along y = 0 from x = 0 to 5 m (six sweeps 0.1 s apart from
+/// 10 s, sensor 0.7 m up, VLP-16 rings every 0.4 deg out to 20 m) through the height field
+/// `world`, its sweeps and poses placed `offset_m` (y, z) off: a drifted pose when not zero.
+pub fn short_drive(
+    world: &dyn Fn(f64, f64) -> f64,
+    seed: u64,
+    offset_m: [f64; 2],
+) -> crate::Mapper {
+    let spec = LidarSpec {
+        az_step_deg: 0.4,
+        max_range_m: 20.0,
+        ..LidarSpec::vlp16()
+    };
+    let [dy, dz] = offset_m;
+    let mut m = crate::Mapper::new(crate::Config::default()).expect("the default config");
+    let mut rng = Rng::new(seed);
+    for i in 0..6 {
+        let x = f64::from(i);
+        let mut pts = cast_scan(world, [x, 0.0, 0.7], &spec, &mut rng);
+        for p in &mut pts {
+            p[1] += dy as f32;
+            p[2] += dz as f32;
+        }
+        let robot = crate::RobotPose {
+            x_m: x,
+            y_m: dy,
+            z_m: dz,
+            yaw_rad: 0.0,
+        };
+        m.update_sweep(pts, [x, dy, 0.7 + dz], &robot, 10.0 + f64::from(i) * 0.1)
+            .expect("a synthetic sweep");
+    }
+    m
+}

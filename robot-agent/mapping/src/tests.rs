@@ -1,6 +1,6 @@
 //! Pipeline tests on synthetic worlds cast with the VLP-16-like model of [`crate::synth`].
 
-use crate::synth::{cast_scan, LidarSpec, Rng};
+use crate::synth::{cast_scan, lattice_points, LidarSpec, Rng};
 use crate::{Class, Config, Evidence, Mapper, RobotPose};
 use common::grid::{decode_tile, encode_tile, wire_tile, CellState, TileIndex};
 
@@ -604,9 +604,12 @@ fn a_view_is_the_cells_it_covers() {
 
 /// Points on a square lattice `side` points wide, 7 cm apart, from (`x0`, `y0`), at height `z`.
 fn sheet(x0: f32, y0: f32, side: usize, z: f32) -> Vec<[f32; 3]> {
-    (0..side)
-        .flat_map(|i| (0..side).map(move |j| [x0 + 0.07 * i as f32, y0 + 0.07 * j as f32, z]))
-        .collect()
+    lattice_points(
+        [f64::from(x0), f64::from(y0)],
+        0.07,
+        [side, side],
+        |_, _| f64::from(z),
+    )
 }
 
 #[test]

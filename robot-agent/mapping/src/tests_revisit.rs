@@ -2,6 +2,7 @@
 //! frame moved under it, is moved onto the current frame instead of standing apart from the new
 //! evidence as false steps.
 
+use crate::synth::lattice_points;
 use crate::{Class, Config, Evidence, Mapper, RobotPose};
 
 /// Flat ground over x, y in [-3, 3) m every 5 cm at height `z(x, y)`, only where `keep`
@@ -18,18 +19,8 @@ fn ground_over(
     keep: impl Fn(f64, f64) -> bool,
 ) -> Vec<[f32; 3]> {
     let rows = ((y1_m - y0_m) / 0.05).round() as usize;
-    let mut pts = Vec::new();
-    for i in 0..120 {
-        for j in 0..rows {
-            let (x, y) = (
-                -3.0 + (i as f64 + 0.5) * 0.05,
-                y0_m + (j as f64 + 0.5) * 0.05,
-            );
-            if keep(x, y) {
-                pts.push([x as f32, y as f32, z(x, y) as f32]);
-            }
-        }
-    }
+    let mut pts = lattice_points([-3.0 + 0.025, y0_m + 0.025], 0.05, [120, rows], z);
+    pts.retain(|p| keep(f64::from(p[0]), f64::from(p[1])));
     pts
 }
 
@@ -262,15 +253,8 @@ fn steps_judged_on_distant_evidence_clear_when_a_nearer_view_shows_flat_ground()
 /// some 15 samples every 3 s.
 fn obstacles_after_a_drifting_revisit() -> usize {
     let strip = |x0: f64, x1: f64, y0: f64, y1: f64, z: &dyn Fn(f64) -> f64| {
-        let mut pts = Vec::new();
-        let (nx, ny) = (((x1 - x0) / 0.05) as usize, ((y1 - y0) / 0.05) as usize);
-        for i in 0..nx {
-            for j in 0..ny {
-                let (x, y) = (x0 + (i as f64 + 0.5) * 0.05, y0 + (j as f64 + 0.5) * 0.05);
-                pts.push([x as f32, y as f32, z(x) as f32]);
-            }
-        }
-        pts
+        let n = [((x1 - x0) / 0.05) as usize, ((y1 - y0) / 0.05) as usize];
+        lattice_points([x0 + 0.025, y0 + 0.025], 0.05, n, |x, _| z(x))
     };
     let at = |x_m: f64, z_m: f64| RobotPose {
         x_m,

@@ -265,8 +265,8 @@ impl Mapper {
 
 #[cfg(test)]
 mod tests {
-    use crate::synth::{cast_scan, LidarSpec, Rng};
-    use crate::{Class, Config, Mapper, RobotPose};
+    use crate::synth::short_drive;
+    use crate::{Class, Mapper, RobotPose};
 
     /// Flat ground with a 1 m box over x 6-7, y -0.5-0.5.
     fn world(x: f64, y: f64) -> f64 {
@@ -279,26 +279,7 @@ mod tests {
 
     /// The ground and the box seen from close by, driving along y = 0 from x = 0 to 5.
     fn mapped() -> Mapper {
-        let spec = LidarSpec {
-            az_step_deg: 0.4,
-            max_range_m: 20.0,
-            ..LidarSpec::vlp16()
-        };
-        let mut m = Mapper::new(Config::default()).unwrap();
-        let mut rng = Rng::new(5);
-        for i in 0..6 {
-            let x = f64::from(i);
-            let pts = cast_scan(&world, [x, 0.0, 0.7], &spec, &mut rng);
-            let robot = RobotPose {
-                x_m: x,
-                y_m: 0.0,
-                z_m: 0.0,
-                yaw_rad: 0.0,
-            };
-            m.update_sweep(pts, [x, 0.0, 0.7], &robot, 10.0 + f64::from(i) * 0.1)
-                .unwrap();
-        }
-        m
+        short_drive(&world, 5, [0.0, 0.0])
     }
 
     #[test]

@@ -353,7 +353,7 @@ fn keep_cells(
 
 #[cfg(test)]
 mod tests {
-    use crate::synth::{cast_scan, LidarSpec, Rng};
+    use crate::synth::short_drive;
     use crate::{Class, Config, Mapper, RobotPose};
 
     /// Flat ground with a 1 m box at (6, 0).
@@ -372,31 +372,7 @@ mod tests {
 
     /// [`mapped`], the sweeps also placed `offset_z` metres high.
     fn mapped_at(offset_y: f64, offset_z: f64) -> Mapper {
-        let spec = LidarSpec {
-            az_step_deg: 0.4,
-            max_range_m: 20.0,
-            ..LidarSpec::vlp16()
-        };
-        let mut m = Mapper::new(Config::default()).unwrap();
-        let mut rng = Rng::new(3);
-        for i in 0..6 {
-            let x = f64::from(i);
-            let mut pts = cast_scan(&world, [x, 0.0, 0.7], &spec, &mut rng);
-            for p in &mut pts {
-                p[1] += offset_y as f32;
-                p[2] += offset_z as f32;
-            }
-            let robot = RobotPose {
-                x_m: x,
-                y_m: offset_y,
-                z_m: offset_z,
-                yaw_rad: 0.0,
-            };
-            let sensor = [x, offset_y, 0.7 + offset_z];
-            m.update_sweep(pts, sensor, &robot, 10.0 + f64::from(i) * 0.1)
-                .unwrap();
-        }
-        m
+        short_drive(&world, 3, [offset_y, offset_z])
     }
 
     /// Obstacle cells (class before inflation) with centres in `[x0, x1] x [y0, y1]`.
