@@ -2,24 +2,21 @@
 //! a far glimpse of a known step's face, and something that appears after the close view is still
 //! picked up from afar.
 
+use crate::synth::lattice_points;
 use crate::{Class, Config, Evidence, Mapper, RobotPose};
 
 /// Ground at z = 0 with a 10 cm strip for y in [0, 1) m, over x in [-2, 2), y in [-2, 2) m,
 /// sampled every `step_m` (points offset half a step so none lies on a cell edge).
 fn strip_points(step_m: f64) -> Vec<[f32; 3]> {
-    let n = (4.0 / step_m).round() as i64;
-    let mut pts = Vec::new();
-    for i in 0..n {
-        for j in 0..n {
-            let (x, y) = (
-                -2.0 + (i as f64 + 0.5) * step_m,
-                -2.0 + (j as f64 + 0.5) * step_m,
-            );
-            let z = if (0.0..1.0).contains(&y) { 0.1 } else { 0.0 };
-            pts.push([x as f32, y as f32, z as f32]);
+    let n = (4.0 / step_m).round() as usize;
+    let first = -2.0 + 0.5 * step_m;
+    lattice_points([first, first], step_m, [n, n], |_, y| {
+        if (0.0..1.0).contains(&y) {
+            0.1
+        } else {
+            0.0
         }
-    }
-    pts
+    })
 }
 
 fn robot_at(x_m: f64, y_m: f64) -> RobotPose {

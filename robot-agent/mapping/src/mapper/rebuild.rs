@@ -353,7 +353,7 @@ fn keep_cells(
 
 #[cfg(test)]
 mod tests {
-    use crate::synth::short_drive;
+    use crate::synth::{lattice_points, short_drive};
     use crate::{Class, Config, Mapper, RobotPose};
 
     /// Flat ground with a 1 m box at (6, 0).
@@ -565,10 +565,7 @@ mod tests {
         // One kept sweep crossed a canopy 2.8 m up over (4, 3) with no ring on the ground
         // below, which the live map, made from every sweep, saw as flat ground.
         let live = mapped(0.0);
-        let canopy: Vec<[f32; 3]> = (0..30)
-            .flat_map(|i| (0..30).map(move |j| (i, j)))
-            .map(|(i, j)| [3.0 + 0.07 * i as f32, 2.0 + 0.07 * j as f32, 2.8])
-            .collect();
+        let canopy = lattice_points([3.0, 2.0], 0.07, [30, 30], |_, _| 2.8);
         let robot = RobotPose {
             x_m: 0.0,
             y_m: 0.0,
