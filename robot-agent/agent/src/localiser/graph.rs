@@ -32,6 +32,8 @@ pub struct GraphStats {
     pub keyframes: usize,
     /// GNSS factors added.
     pub gnss_factors: usize,
+    /// Gravity factors added.
+    pub gravity_factors: usize,
     /// Loops accepted.
     pub loops: usize,
     /// Optimisations run.
@@ -108,7 +110,8 @@ impl GraphLocaliser {
     }
 
     /// One localised sweep: `slam_pose` = `slam<-base_link`, `points` in the lidar frame,
-    /// `map_from_slam` the anchoring now.
+    /// `map_from_slam` the anchoring now, `up_base` the world's up in base_link as a fresh
+    /// gravity estimate has it (None: no fresh one).
     pub fn on_scan(
         &mut self,
         stamp_s: f64,
@@ -116,6 +119,7 @@ impl GraphLocaliser {
         points: &[Point],
         base_from_lidar: &Isometry3<f64>,
         map_from_slam: &Isometry3<f64>,
+        up_base: Option<Vector3<f64>>,
     ) -> GraphStep {
         let mut step = GraphStep::default();
         let p_slam = slam_pose.translation.vector;
@@ -139,6 +143,10 @@ impl GraphLocaliser {
             .graph
             .add_keyframe(stamp_s, map_from_slam0 * slam_pose, cloud);
         self.stats.keyframes += 1;
+        if let Some(up) = up_base.filter(|_| self.cfg.gravity_sigma_rad > 0.0) {
+            self.graph.add_gravity(kf, up, self.cfg.gravity_sigma_rad);
+            self.stats.gravity_factors += 1;
+        }
         let mut optimise = false;
         if let Some((t_fix, p)) = self.pending_fix {
             if (stamp_s - t_fix).abs() <= self.cfg.gnss_max_age_s {
@@ -275,7 +283,7 @@ mod tests {
             if !(60..140).contains(&i) {
                 g.on_fix(t, Vector3::new(x, 0.0, 0.0));
             }
-            let s = g.on_scan(t, &slam_pose, &[], &Isometry3::identity(), &anchor);
+            let s = g.on_scan(t, &slam_pose, &[], &Isometry3::identity(), &anchor, None);
             if let Some(m) = s.map_from_slam {
                 assert!(corrected.is_none(), "one optimisation, at the return");
                 assert!((140..=142).contains(&i), "optimised at {i}");
@@ -314,7 +322,7 @@ mod tests {
             }
             let pose = se3::from_xyz_rpy([v * t, 0.0, 0.0], [0.0; 3]);
             optimised |= g
-                .on_scan(t, &pose, &[], &Isometry3::identity(), &anchor)
+                .on_scan(t, &pose, &[], &Isometry3::identity(), &anchor, None)
                 .map_from_slam
                 .is_some();
         }

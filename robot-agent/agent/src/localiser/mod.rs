@@ -449,12 +449,16 @@ impl Localiser {
         let mut graph_optimised = false;
         if let Some(g) = self.graph.as_mut() {
             let points = out.deskewed.as_deref().unwrap_or(&scan.points);
+            // The pose's tilt was set from the accelerometer lately: its up is the measurement.
+            let up_base = (scan.stamp_s - self.gravity_t_s < GRAVITY_FRESH_S)
+                .then(|| pose.iso.rotation.inverse() * Vector3::z());
             let step = g.on_scan(
                 scan.stamp_s,
                 &out.pose_map_base,
                 points,
                 &self.base_from_lidar,
                 &map_from_slam,
+                up_base,
             );
             if let Some(m) = step.map_from_slam {
                 graph_optimised = true;

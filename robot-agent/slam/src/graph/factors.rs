@@ -51,6 +51,16 @@ pub enum Factor {
         /// Information, 1/m^2.
         info: Matrix3<f64>,
     },
+    /// The world's up direction as the accelerometer saw it in one keyframe's frame: its roll
+    /// and pitch (yaw is free).
+    Gravity {
+        /// Keyframe index.
+        kf: usize,
+        /// World up `[0, 0, 1]` expressed in the keyframe's frame, unit length.
+        up: Vector3<f64>,
+        /// Information, 1/rad^2 (each axis of the small-angle error).
+        info: f64,
+    },
 }
 
 /// A factor linearised at the current poses: error, Jacobian blocks and the IRLS weight.
@@ -68,6 +78,13 @@ pub fn information(sigma_rot_rad: f64, sigma_trans_m: f64) -> Matrix6<f64> {
     let r = 1.0 / sigma_rot_rad.max(1e-9).powi(2);
     let t = 1.0 / sigma_trans_m.max(1e-9).powi(2);
     Matrix6::from_diagonal(&Vector6::new(r, r, r, t, t, t))
+}
+
+/// The tilt error of a gravity factor: the keyframe's up seen in its own frame minus the
+/// measured one (for small errors, the roll/pitch error in radians; yaw does not change it).
+fn gravity_error(t: &Isometry3<f64>, up: &Vector3<f64>) -> Vector6<f64> {
+    let e = t.rotation.inverse() * Vector3::z() - up;
+    Vector6::new(e.x, e.y, e.z, 0.0, 0.0, 0.0)
 }
 
 fn between_error(ti: &Isometry3<f64>, tj: &Isometry3<f64>, z: &Isometry3<f64>) -> Vector6<f64> {
@@ -113,6 +130,9 @@ impl Factor {
             Factor::Position { kf, enu_m, info } => {
                 let e = poses[*kf].translation.vector - enu_m;
                 e.dot(&(info * e))
+            }
+            Factor::Gravity { kf, up, info } => {
+                info * gravity_error(&poses[*kf], up).norm_squared()
             }
         }
     }
@@ -168,6 +188,18 @@ impl Factor {
                 Linearised {
                     error: Vector6::new(e3.x, e3.y, e3.z, 0.0, 0.0, 0.0),
                     blocks: vec![(*kf, j)],
+                    info: inf,
+                }
+            }
+            Factor::Gravity { kf, up, info } => {
+                let f = |t: &Isometry3<f64>| gravity_error(t, up);
+                let mut inf = Matrix6::zeros();
+                for k in 0..3 {
+                    inf[(k, k)] = *info;
+                }
+                Linearised {
+                    error: f(&poses[*kf]),
+                    blocks: vec![(*kf, numeric_jacobian(&poses[*kf], f))],
                     info: inf,
                 }
             }

@@ -52,6 +52,9 @@ pub struct GraphConfig {
     pub anchor_sigma_rad: f64,
     /// GNSS factors never trust a fix more than this, metres.
     pub gnss_min_sigma_m: f64,
+    /// Gravity factor: tilt sigma of the accelerometer's up direction at a keyframe, radians
+    /// (0: no gravity factors; the agent adds one only while its gravity estimate is fresh).
+    pub gravity_sigma_rad: f64,
     /// Scan Context: range of the descriptor, metres.
     pub place_max_range_m: f64,
     /// Scan Context: points lower than this below the sensor are ignored, metres.
@@ -135,6 +138,7 @@ impl Default for GraphConfig {
             anchor_sigma_m: 0.01,
             anchor_sigma_rad: 0.001,
             gnss_min_sigma_m: 0.02,
+            gravity_sigma_rad: 0.0,
             place_max_range_m: 60.0,
             place_z_offset_m: 2.0,
             place_min_occupancy: 0.05,
@@ -423,6 +427,22 @@ impl PoseGraph {
             descriptor,
         });
         idx
+    }
+
+    /// Adds a gravity factor on keyframe `kf`: `up` is the world's up direction in the
+    /// keyframe's frame as the accelerometer measured it, `sigma_rad` its tilt uncertainty.
+    /// Position factors alone leave the keyframes' roll and pitch to the odometry chain, and a
+    /// rebuilt map then tilts the ground of a long stretch by SLAM's drift.
+    pub fn add_gravity(&mut self, kf: usize, up: Vector3<f64>, sigma_rad: f64) {
+        let n = up.norm();
+        if kf >= self.keyframes.len() || !n.is_finite() || n < 1e-6 {
+            return;
+        }
+        self.factors.push(Factor::Gravity {
+            kf,
+            up: up / n,
+            info: 1.0 / sigma_rad.max(1e-9).powi(2),
+        });
     }
 
     /// Adds a GNSS position factor on keyframe `kf`: `enu_m` in the graph's world frame with

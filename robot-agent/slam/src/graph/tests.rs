@@ -525,3 +525,70 @@ fn a_look_alike_place_further_than_the_graph_can_have_drifted_is_no_loop() {
         assert!(correction_m >= 40.0 - 16.0 - 0.1, "{correction_m}");
     }
 }
+
+/// The tilt of a keyframe's pose against the truth's, radians (yaw does not count).
+fn tilt_error(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
+    let (ua, ub) = (
+        a.rotation.inverse() * Vector3::z(),
+        b.rotation.inverse() * Vector3::z(),
+    );
+    ua.angle(&ub)
+}
+
+#[test]
+fn gravity_factors_hold_the_keyframes_tilt_where_positions_do_not() {
+    // 200 m straight and level, a keyframe every 2 m, odometry pitching 0.05 deg more per
+    // keyframe, RTK on every keyframe. Positions pin where the keyframes are; how they are
+    // tilted is left to the odometry chain, bent back only as far as the next positions pull.
+    let truth: Vec<Isometry3<f64>> = (0..100).map(|i| pose(i as f64 * 2.0, 0.0, 0.0)).collect();
+    let mut odom = vec![truth[0]];
+    for w in truth.windows(2) {
+        let step = w[0].inverse() * w[1];
+        let bent = Isometry3::from_parts(
+            step.translation,
+            step.rotation * UnitQuaternion::from_euler_angles(0.0, 0.05f64.to_radians(), 0.0),
+        );
+        odom.push(odom.last().unwrap() * bent);
+    }
+    let run = |gravity: bool| {
+        let mut g = PoseGraph::new(GraphConfig::default());
+        let mut rng = StdRng::seed_from_u64(5);
+        for (i, o) in odom.iter().enumerate() {
+            let kf = g.add_keyframe(i as f64, *o, None);
+            let noise = Vector3::from_fn(|_, _| rng.random_range(-0.02..0.02));
+            g.add_gnss(kf, truth[i].translation.vector + noise, 0.02, 0.03);
+            if gravity {
+                // An accelerometer's up, 0.1 deg off at random.
+                let wobble = UnitQuaternion::from_euler_angles(
+                    rng.random_range(-0.1f64..0.1).to_radians(),
+                    rng.random_range(-0.1f64..0.1).to_radians(),
+                    0.0,
+                );
+                let up = wobble * (truth[i].rotation.inverse() * Vector3::z());
+                g.add_gravity(kf, up, 0.005);
+            }
+        }
+        g.optimise();
+        let tilt: Vec<f64> = g
+            .keyframes()
+            .iter()
+            .zip(&truth)
+            .map(|(k, t)| tilt_error(&k.pose, t).to_degrees())
+            .collect();
+        (max(&tilt), max(&position_errors(&g, &truth)))
+    };
+    let (without, pos_without) = run(false);
+    let (with, pos_with) = run(true);
+    println!(
+        "keyframe tilt error: {without:.3} deg with positions only, {with:.3} deg with gravity factors (positions {pos_without:.3} / {pos_with:.3} m)"
+    );
+    assert!(
+        without > 0.3,
+        "the drift should show without gravity: {without}"
+    );
+    assert!(
+        with < 0.15 && with < without / 3.0,
+        "tilt error {with} deg with gravity factors, {without} without"
+    );
+    assert!(pos_with < 0.1, "positions {pos_with} m");
+}

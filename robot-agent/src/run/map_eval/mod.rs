@@ -213,6 +213,7 @@ pub fn run(
         rep.graph = GraphReport {
             keyframes: g.keyframes,
             gnss_factors: g.gnss_factors,
+            gravity_factors: g.gravity_factors,
             loops: g.loops,
             optimisations: g.optimisations,
             map_rebuilds,

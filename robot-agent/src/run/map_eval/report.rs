@@ -175,6 +175,8 @@ pub struct GraphReport {
     pub keyframes: usize,
     /// GNSS factors.
     pub gnss_factors: usize,
+    /// Gravity factors.
+    pub gravity_factors: usize,
     /// Loops accepted.
     pub loops: usize,
     /// Optimisations.
