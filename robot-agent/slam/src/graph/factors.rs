@@ -193,14 +193,10 @@ impl Factor {
             }
             Factor::Gravity { kf, up, info } => {
                 let f = |t: &Isometry3<f64>| gravity_error(t, up);
-                let mut inf = Matrix6::zeros();
-                for k in 0..3 {
-                    inf[(k, k)] = *info;
-                }
                 Linearised {
                     error: f(&poses[*kf]),
                     blocks: vec![(*kf, numeric_jacobian(&poses[*kf], f))],
-                    info: inf,
+                    info: Matrix6::from_diagonal(&Vector6::new(*info, *info, *info, 0.0, 0.0, 0.0)),
                 }
             }
         }
