@@ -113,6 +113,9 @@ pub(super) struct CellData {
     /// before any sweep within the processing distance sampled it, metres (NaN: nothing
     /// waiting): the cell is still sampled once, against its old epochs as they were.
     pub(super) plane_shift_m: f32,
+    /// The newest evidence epoch a revisit's offset has moved, and the epoch the move was made
+    /// in (both i64::MIN: never moved). The moved epochs stand in the frame of the move.
+    pub(super) aligned: (i64, i64),
     /// Closest robot distance from which this cell was judged a drop-off, metres.
     pub(super) neg_range_m: f32,
     /// Closest robot distance from which the cell's current class was judged, metres.
@@ -163,6 +166,7 @@ impl Default for CellData {
             current_s: f32::NEG_INFINITY,
             unaligned_s: f32::NEG_INFINITY,
             plane_shift_m: f32::NAN,
+            aligned: (i64::MIN, i64::MIN),
             neg_range_m: f32::INFINITY,
             class_range_m: f32::INFINITY,
             class_seen_m: f32::INFINITY,
@@ -230,6 +234,16 @@ impl CellData {
     /// `before` or earlier, or was driven over.
     pub(super) fn is_earlier_visit(&self, t_s: f32, gap_s: f32, before: i64) -> bool {
         t_s - self.current_s > gap_s && (self.driven || self.newest_epoch_before(before).is_some())
+    }
+
+    /// An offset measured against epochs up to `until_epoch` applies to this cell's epochs up to
+    /// `before`: it holds evidence there that no offset has moved yet, or the move that placed
+    /// it was made in the earlier visit the offset measures (a third visit to ground the second
+    /// one moved without seeing it). A cell a plane moved without sampling it is not moved
+    /// again by the same visit's planes once `revisit_gap_s` has passed without a sight of it.
+    pub(super) fn awaits_offset(&self, before: i64, until_epoch: i64) -> bool {
+        let (moved, at) = self.aligned;
+        at <= until_epoch || self.newest_epoch_before(before).is_some_and(|e| e > moved)
     }
 
     /// The index of the newest epoch holding evidence with index `before` or earlier.

@@ -26,6 +26,9 @@
 //! it too, within [`CATCH_UP_S`].
 //! Only epochs nearer in time to the sampled visit than to the fit move: a far glimpse taken on
 //! the way back is in the current frame already, however long ago.
+//! A move places the moved epochs in the frame of the move (`CellData::awaits_offset`): a
+//! cell moved without a sight of it counts as an earlier visit's again after the gap, but only
+//! a fit measured against epochs from before the move (a later visit) moves it again.
 
 use super::cell_data::Moments;
 use super::{largest_at_corners, norm2, Evidence, Mapper, RobotPose, UpdateReport};
@@ -147,6 +150,7 @@ impl Mapper {
         let t = t_s as f32;
         let gap = gap_s as f32;
         let before = self.epoch_before(t_s);
+        let now = self.epoch_of(t_s);
         for cy in rcy - r..=rcy + r {
             for cx in rcx - r..=rcx + r {
                 let (x, y) = self.center_m(cx, cy);
@@ -155,7 +159,8 @@ impl Mapper {
                     continue;
                 }
                 let old = self.data(cx, cy).is_some_and(|d| {
-                    d.is_earlier_visit(t, gap, before) || t - d.unaligned_s <= CATCH_UP_S
+                    (d.is_earlier_visit(t, gap, before) || t - d.unaligned_s <= CATCH_UP_S)
+                        && d.awaits_offset(before, off.until_epoch)
                 });
                 if !old {
                     continue;
@@ -170,7 +175,9 @@ impl Mapper {
                 if shift {
                     // Only the earlier visit's epochs: far glimpses taken on the way back are
                     // in the current frame already.
-                    d.shift_epochs_before(before.min(off.until_epoch), dz);
+                    let moved = before.min(off.until_epoch);
+                    d.shift_epochs_before(moved, dz);
+                    d.aligned = (d.aligned.0.max(moved), now);
                     self.refresh_ground(cx, cy);
                     rep.revisit_moved += 1;
                     if dist <= pd {
