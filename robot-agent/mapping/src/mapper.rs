@@ -148,6 +148,8 @@ pub struct UpdateReport {
     pub ceiling_wiped: usize,
     /// Cells whose points this sweep were ignored: seen much better from closer before.
     pub far_skipped: usize,
+    /// Cells whose older epoch, seen only from much farther than this sweep, gave way to it.
+    pub far_superseded: usize,
     /// Samples the revisit offset was fitted to in this update, this sweep's and the last few
     /// sweeps' ground cells against an earlier visit's (0: no offset fitted).
     pub revisit_pairs: usize,

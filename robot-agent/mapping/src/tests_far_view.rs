@@ -137,3 +137,85 @@ fn something_appearing_after_the_close_view_is_picked_up_from_afar() {
         m.describe(cell.0, cell.1)
     );
 }
+
+/// Obstacle cells over the patch, and the lowest return in the column's cells, after a first
+/// view from 22-26 m that puts the column x in [0.4, 0.8) m 10 cm low (that range's attitude
+/// error), then a view from 4-8 m 5 s later that shows it all flat.
+fn after_far_then_close_view() -> (usize, f32, usize) {
+    let column = |x: f64| (0.4..0.8).contains(&x);
+    let mut m = Mapper::new(Config::default()).unwrap();
+    let far = lattice_points([-1.95, -1.95], 0.1, [40, 40], |x, _| {
+        if column(x) {
+            -0.1
+        } else {
+            0.0
+        }
+    });
+    m.update_points(far, &robot_at(0.0, -24.0), 0.0, Evidence::Scan)
+        .unwrap();
+    let rep = m
+        .update_points(
+            strip_points(0.05)
+                .into_iter()
+                .map(|p| [p[0], p[1], 0.0])
+                .collect(),
+            &robot_at(0.0, -6.0),
+            5.0,
+            Evidence::Scan,
+        )
+        .unwrap();
+    let mut obstacles = 0;
+    let mut lowest = f32::INFINITY;
+    let (c0, c1) = (
+        m.lattice().cell_of(-1.9, -1.9),
+        m.lattice().cell_of(1.9, 1.9),
+    );
+    for cy in c0.1..=c1.1 {
+        for cx in c0.0..=c1.0 {
+            obstacles += usize::from(m.class(cx, cy) == Class::Obstacle);
+            let x = (cx as f64 + 0.5) * m.lattice().cell_size_f64();
+            if column(x) {
+                lowest = lowest.min(m.height_range(cx, cy).unwrap().0);
+            }
+        }
+    }
+    (obstacles, lowest, rep.far_superseded)
+}
+
+/// The far-view rule's mirror: an epoch seen only from afar gives way to a much closer one once
+/// that holds enough returns, instead of setting the cell's ground beside neighbours seen from
+/// close by (the lowest return is the ground).
+#[test]
+fn a_close_view_replaces_an_older_epoch_seen_only_from_afar() {
+    let (obstacles, lowest, superseded) = after_far_then_close_view();
+    assert!(
+        lowest > -0.02,
+        "the column's lowest return {lowest:.3} m is the far view's"
+    );
+    assert_eq!(obstacles, 0, "obstacle cells on flat ground");
+    assert!(superseded > 0, "no far epoch counted as given way");
+}
+
+/// A far epoch that stands apart from the close view by more than a far view's attitude error
+/// explains (20 cm at 24 m: an object's top, beside which a grazing close view sees only ground)
+/// is not dropped for the closer view.
+#[test]
+fn a_far_epoch_apart_beyond_attitude_error_is_kept_against_a_closer_view() {
+    let column = |x: f64| (0.4..0.8).contains(&x);
+    let mut m = Mapper::new(Config::default()).unwrap();
+    let far = lattice_points([-1.95, -1.95], 0.1, [40, 40], |x, _| {
+        if column(x) {
+            0.2
+        } else {
+            0.0
+        }
+    });
+    m.update_points(far, &robot_at(0.0, -24.0), 0.0, Evidence::Scan)
+        .unwrap();
+    let flat = lattice_points([-1.975, -1.975], 0.05, [80, 80], |_, _| 0.0);
+    m.update_points(flat, &robot_at(0.0, -6.0), 5.0, Evidence::Scan)
+        .unwrap();
+    let (cx, cy) = m.lattice().cell_of(0.6, 0.0);
+    let (_, top) = m.height_range(cx, cy).unwrap();
+    assert!(top > 0.15, "the column's top {top:.3} m was dropped");
+}

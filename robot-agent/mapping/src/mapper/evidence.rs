@@ -17,6 +17,11 @@ const SUSPECT_ABOVE_M: f32 = 0.04;
 /// ground under a ceiling moves from sweep to sweep.
 const CEILING_WIPE_MARGIN_M: f32 = 0.3;
 
+/// The attitude error a view from afar may carry, radians (0.29 deg): the largest height
+/// difference an older far epoch may show against a much closer view and still be taken for the
+/// same ground seen worse (see `merge_evidence`).
+const FAR_ATTITUDE_RAD: f64 = 0.005;
+
 impl Mapper {
     /// Steps 1-2: drops the points above the climb cone or out of range around the robot, then
     /// isolated points among those standing above their cell's lowest return this sweep.
@@ -229,6 +234,7 @@ impl Mapper {
                 rep.ceiling_wiped += 1;
             }
             let far_factor = self.cfg.far_evidence_factor as f32;
+            let min_n = self.rules.min_points();
             let stale_s = self.cfg.evidence_stale_s as f32;
             let grows = self.cfg.max_step_m as f32;
             // A cell seen well from close by keeps that view against much poorer ones from far
@@ -301,6 +307,26 @@ impl Mapper {
                         d.cur = d.cur.merged(&add);
                         d.cur_range_m = d.cur_range_m.min(range_m);
                         d.seen_range_m = d.seen_range_m.min(range_m);
+                        // The mirror of the far-view rule: an older epoch seen only from so far
+                        // that this view would have kept it out gives way once this one holds
+                        // enough returns. Its heights carry its attitude error times its range,
+                        // and its lowest return would set the cell's ground beside neighbours
+                        // seen from close by (on `loop` a 3-return epoch from 28 m stood 10 cm
+                        // under a 19-return one from 13 m, beyond the revisit's reach). Only
+                        // while the two differ by no more than the far view's attitude error
+                        // can explain: beside a 0.5 m box a close view sees only its top in the
+                        // edge cells, and the ground a far view saw there is the box's edge (on
+                        // `loop`, dropping it lost 4 cells of the box).
+                        if d.prev.n > 0
+                            && d.cur.n >= min_n
+                            && d.prev_range_m > far_factor * d.cur_range_m + 1.0
+                            && (d.prev.stats().mean_m - d.cur.stats().mean_m).abs()
+                                <= FAR_ATTITUDE_RAD * f64::from(d.prev_range_m)
+                        {
+                            d.prev = Moments::default();
+                            d.prev_range_m = f32::INFINITY;
+                            rep.far_superseded += 1;
+                        }
                     }
                     add.n > 0
                 }
