@@ -138,32 +138,37 @@ fn something_appearing_after_the_close_view_is_picked_up_from_afar() {
     );
 }
 
-/// Obstacle cells over the patch, and the lowest return in the column's cells, after a first
-/// view from 22-26 m that puts the column x in [0.4, 0.8) m 10 cm low (that range's attitude
-/// error), then a view from 4-8 m 5 s later that shows it all flat.
-fn after_far_then_close_view() -> (usize, f32, usize) {
-    let column = |x: f64| (0.4..0.8).contains(&x);
+/// The column x in [0.4, 0.8) m of the patch the far-then-close tests use.
+fn in_column(x: f64) -> bool {
+    (0.4..0.8).contains(&x)
+}
+
+/// A mapper that saw the patch every 10 cm from 22-26 m at t = 0 s with the column at
+/// `column_z_m` and the rest at 0, then every 5 cm from 4-8 m at t = 5 s all flat at 0; and the
+/// second update's report.
+fn column_seen_far_then_flat_close(column_z_m: f64) -> (Mapper, crate::UpdateReport) {
     let mut m = Mapper::new(Config::default()).unwrap();
     let far = lattice_points([-1.95, -1.95], 0.1, [40, 40], |x, _| {
-        if column(x) {
-            -0.1
+        if in_column(x) {
+            column_z_m
         } else {
             0.0
         }
     });
     m.update_points(far, &robot_at(0.0, -24.0), 0.0, Evidence::Scan)
         .unwrap();
+    let flat = lattice_points([-1.975, -1.975], 0.05, [80, 80], |_, _| 0.0);
     let rep = m
-        .update_points(
-            strip_points(0.05)
-                .into_iter()
-                .map(|p| [p[0], p[1], 0.0])
-                .collect(),
-            &robot_at(0.0, -6.0),
-            5.0,
-            Evidence::Scan,
-        )
+        .update_points(flat, &robot_at(0.0, -6.0), 5.0, Evidence::Scan)
         .unwrap();
+    (m, rep)
+}
+
+/// Obstacle cells over the patch, and the lowest return in the column's cells, after a first
+/// view from 22-26 m that puts the column 10 cm low (that range's attitude error), then a view
+/// from 4-8 m 5 s later that shows it all flat; and how many far epochs gave way.
+fn after_far_then_close_view() -> (usize, f32, usize) {
+    let (m, rep) = column_seen_far_then_flat_close(-0.1);
     let mut obstacles = 0;
     let mut lowest = f32::INFINITY;
     let (c0, c1) = (
@@ -174,7 +179,7 @@ fn after_far_then_close_view() -> (usize, f32, usize) {
         for cx in c0.0..=c1.0 {
             obstacles += usize::from(m.class(cx, cy) == Class::Obstacle);
             let x = (cx as f64 + 0.5) * m.lattice().cell_size_f64();
-            if column(x) {
+            if in_column(x) {
                 lowest = lowest.min(m.height_range(cx, cy).unwrap().0);
             }
         }
@@ -201,20 +206,7 @@ fn a_close_view_replaces_an_older_epoch_seen_only_from_afar() {
 /// is not dropped for the closer view.
 #[test]
 fn a_far_epoch_apart_beyond_attitude_error_is_kept_against_a_closer_view() {
-    let column = |x: f64| (0.4..0.8).contains(&x);
-    let mut m = Mapper::new(Config::default()).unwrap();
-    let far = lattice_points([-1.95, -1.95], 0.1, [40, 40], |x, _| {
-        if column(x) {
-            0.2
-        } else {
-            0.0
-        }
-    });
-    m.update_points(far, &robot_at(0.0, -24.0), 0.0, Evidence::Scan)
-        .unwrap();
-    let flat = lattice_points([-1.975, -1.975], 0.05, [80, 80], |_, _| 0.0);
-    m.update_points(flat, &robot_at(0.0, -6.0), 5.0, Evidence::Scan)
-        .unwrap();
+    let (m, _) = column_seen_far_then_flat_close(0.2);
     let (cx, cy) = m.lattice().cell_of(0.6, 0.0);
     let (_, top) = m.height_range(cx, cy).unwrap();
     assert!(top > 0.15, "the column's top {top:.3} m was dropped");

@@ -247,34 +247,40 @@ fn steps_judged_on_distant_evidence_clear_when_a_nearer_view_shows_flat_ground()
     );
 }
 
+/// Ground every 5 cm over x in [`x0`, `x1`), y in [`y0`, `y1`) metres, at height `z(x)`.
+fn rect(x0: f64, x1: f64, y0: f64, y1: f64, z: &dyn Fn(f64) -> f64) -> Vec<[f32; 3]> {
+    let n = [((x1 - x0) / 0.05) as usize, ((y1 - y0) / 0.05) as usize];
+    lattice_points([x0 + 0.025, y0 + 0.025], 0.05, n, |x, _| z(x))
+}
+
+/// The robot at (`x_m`, -2 m), its wheels at `z_m`, heading along +x.
+fn facing_east(x_m: f64, z_m: f64) -> RobotPose {
+    RobotPose {
+        x_m,
+        y_m: -2.0,
+        z_m,
+        yaw_rad: 0.0,
+    }
+}
+
 /// Obstacle cells over a 36 m strip after a revisit along it whose frame drifts from the first
 /// visit's by 6 mm a metre (beyond the plane's tilt limit, so each fit is a median), seen one
 /// row at a time: once the cells within reach are aligned, the leading edge of the reach brings
 /// some 15 samples every 3 s.
 fn obstacles_after_a_drifting_revisit() -> usize {
-    let strip = |x0: f64, x1: f64, y0: f64, y1: f64, z: &dyn Fn(f64) -> f64| {
-        let n = [((x1 - x0) / 0.05) as usize, ((y1 - y0) / 0.05) as usize];
-        lattice_points([x0 + 0.025, y0 + 0.025], 0.05, n, |x, _| z(x))
-    };
-    let at = |x_m: f64, z_m: f64| RobotPose {
-        x_m,
-        y_m: -2.0,
-        z_m,
-        yaw_rad: 0.0,
-    };
     let mut m = Mapper::new(Config::default()).unwrap();
     for (k, x) in [6.0, 18.0, 30.0].into_iter().enumerate() {
-        let pts = strip(x - 6.0, x + 6.0, -1.5, 1.5, &|_| 0.0);
-        m.update_points(pts, &at(x, 0.0), 0.1 * k as f64, Evidence::Scan)
+        let pts = rect(x - 6.0, x + 6.0, -1.5, 1.5, &|_| 0.0);
+        m.update_points(pts, &facing_east(x, 0.0), 0.1 * k as f64, Evidence::Scan)
             .unwrap();
     }
     let offset = |x: f64| 0.05 + 0.006 * x;
     for k in 0..=300 {
         let x = 0.1 * k as f64;
-        let pts = strip((x - 11.0).max(0.0), (x + 11.0).min(36.0), 0.0, 0.2, &offset);
+        let pts = rect((x - 11.0).max(0.0), (x + 11.0).min(36.0), 0.0, 0.2, &offset);
         m.update_points(
             pts,
-            &at(x, offset(x)),
+            &facing_east(x, offset(x)),
             100.0 + 0.1 * k as f64,
             Evidence::Scan,
         )
@@ -294,23 +300,13 @@ fn refits_along_the_way_follow_a_drifting_offset() {
 /// along a strip beside it at 0.25 m/s, so each visit's planes are refitted along the way and
 /// stay in use for longer than `revisit_gap_s`, within reach of the patch all along.
 fn unseen_patch_after_revisits() -> (f64, f64) {
-    let area = |x0: f64, x1: f64, y0: f64, y1: f64, z: f64| {
-        let n = [((x1 - x0) / 0.05) as usize, ((y1 - y0) / 0.05) as usize];
-        lattice_points([x0 + 0.025, y0 + 0.025], 0.05, n, |_, _| z)
-    };
-    let at = |x_m: f64, z_m: f64| RobotPose {
-        x_m,
-        y_m: -2.0,
-        z_m,
-        yaw_rad: 0.0,
-    };
     let mut m = Mapper::new(Config::default()).unwrap();
     for (k, x) in [6.0, 18.0].into_iter().enumerate() {
-        let mut pts = area(x - 6.0, x + 6.0, -1.5, 1.5, 0.0);
+        let mut pts = rect(x - 6.0, x + 6.0, -1.5, 1.5, &|_| 0.0);
         if k == 0 {
-            pts.extend(area(0.0, 3.0, 3.0, 4.0, 0.0));
+            pts.extend(rect(0.0, 3.0, 3.0, 4.0, &|_| 0.0));
         }
-        m.update_points(pts, &at(x, 0.0), 0.1 * k as f64, Evidence::Scan)
+        m.update_points(pts, &facing_east(x, 0.0), 0.1 * k as f64, Evidence::Scan)
             .unwrap();
     }
     let patch = |m: &Mapper| {
@@ -320,9 +316,14 @@ fn unseen_patch_after_revisits() -> (f64, f64) {
     let mut visit = |t0_s: f64, z_m: f64| {
         for k in 0..=400 {
             let x = 0.025 * k as f64;
-            let pts = area((x - 8.0).max(0.0), (x + 8.0).min(24.0), -0.5, 0.5, z_m);
-            m.update_points(pts, &at(x, z_m), t0_s + 0.1 * k as f64, Evidence::Scan)
-                .unwrap();
+            let pts = rect((x - 8.0).max(0.0), (x + 8.0).min(24.0), -0.5, 0.5, &|_| z_m);
+            m.update_points(
+                pts,
+                &facing_east(x, z_m),
+                t0_s + 0.1 * k as f64,
+                Evidence::Scan,
+            )
+            .unwrap();
         }
         patch(&m)
     };
